@@ -1,0 +1,59 @@
+"""Safe numerics: the one place where square roots, divisions, normalisations
+and arc-cosines are guarded.
+
+Every function uses the double-``where`` pattern (equinox, pbrt's SafeSqrt):
+the unsafe operand is replaced by a harmless value *before* the operation, so
+the masked lane yields a finite value and a zero (not NaN) gradient.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+# Smallest squared length treated as a direction. Below it a vector carries no
+# usable direction and normalisation returns the fallback (zero vector).
+_TINY_SQ = 1e-30
+
+
+def safe_sqrt(x: ArrayLike) -> Array:
+    """sqrt(max(x, 0)) with a finite gradient at and below 0 (gradient 0 there)."""
+    x = jnp.asarray(x)
+    ok = x > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
+
+
+def safe_div(num: ArrayLike, den: ArrayLike, fallback: ArrayLike = 0.0) -> Array:
+    """num / den, returning ``fallback`` (and gradient 0) where den == 0."""
+    num = jnp.asarray(num)
+    den = jnp.asarray(den)
+    ok = den != 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1), fallback)
+
+
+def safe_normalize(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """v / |v| along the last axis; the zero vector (finite gradient) where |v| ~ 0."""
+    v = jnp.asarray(v)
+    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    ok = sq > _TINY_SQ
+    inv = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, sq, 1)), 0)
+    return v * inv
+
+
+def safe_acos(x: ArrayLike) -> Array:
+    """arccos(clip(x, -1, 1)) with finite gradients at |x| = 1.
+
+    The derivative of arccos is infinite at +-1; the clip is applied strictly
+    inside the domain so the gradient there is the (large but finite) value at
+    1 - eps instead of Inf.
+    """
+    x = jnp.asarray(x)
+    eps = jnp.finfo(jnp.result_type(x, jnp.float32)).eps
+    return jnp.arccos(jnp.clip(x, -1 + eps, 1 - eps))
+
+
+def safe_log(x: ArrayLike, floor: float = 1e-30) -> Array:
+    """log(max(x, floor)) with gradient 0 below the floor."""
+    x = jnp.asarray(x)
+    ok = x > floor
+    return jnp.where(ok, jnp.log(jnp.where(ok, x, 1)), jnp.log(jnp.asarray(floor, x.dtype)))

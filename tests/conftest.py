@@ -1,0 +1,25 @@
+"""Strict test settings (after optimistix's conftest): float64 available for the
+mathematics, rank promotion raises, warnings are errors (pyproject)."""
+
+from pathlib import Path
+
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture
+def key():
+    return jax.random.PRNGKey(5678)
+
+
+@pytest.fixture
+def shared_data():
+    """Path to ../shared/data; skips the test with a reason when it is absent."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared data not found at {SHARED_DATA} (real-data tests need ../shared/data)")
+    return SHARED_DATA
