@@ -1,0 +1,48 @@
+import numpy as np
+
+import stage
+
+from .geometry import merge, plane, uv_sphere
+
+
+def test_sphere_casts_its_shadow_where_geometry_says():
+    # A sphere of radius 30 centred 60 above a plane, lit from straight above by a distant light.
+    m = merge(plane(size=200.0, n=20, y=0.0), uv_sphere(radius=30.0, center=(0.0, 60.0, 0.0), with_uv=False))
+    s = stage.texel_samples(m, 64)
+    rig = stage.make_rig(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, 1], [-1, -1, -1]]), near_field=False)
+    vis = stage.light_visibility(m, s, rig)
+    p = np.asarray(s.position)
+    r = np.hypot(p[:, 0], p[:, 2])
+    # Orthographic shadow of the sphere: the disc r < 30 (margin of one texel plus the mesh's chord error).
+    assert not vis[r < 28.0, 0].any()
+    assert vis[r > 32.0, 0].all()
+    # Light 3 is below the plane: never visible.
+    assert not vis[:, 3].any()
+
+
+def test_point_light_shadow_is_a_perspective_projection():
+    m = merge(plane(size=400.0, n=20, y=0.0), uv_sphere(radius=20.0, center=(0.0, 100.0, 0.0), with_uv=False))
+    s = stage.texel_samples(m, 128)
+    light_h = 200.0
+    rig = stage.make_rig(np.array([[0.0, light_h, 0], [1, 0, 0], [0, 0, 1], [-1, -1, -1]]), near_field=True)
+    vis = stage.light_visibility(m, s, rig)
+    r = np.hypot(np.asarray(s.position)[:, 0], np.asarray(s.position)[:, 2])
+    # Cone from the light tangent to the sphere: half-angle asin(20/100); radius on the plane = 200 tan(asin(0.2)).
+    r_shadow = light_h * np.tan(np.arcsin(20.0 / 100.0))
+    assert not vis[r < r_shadow - 3.0, 0].any()
+    assert vis[r > r_shadow + 3.0, 0].all()
+
+
+def test_camera_visibility_hides_the_back_and_the_occluded():
+    m = merge(plane(size=200.0, n=20, y=0.0), uv_sphere(radius=30.0, center=(0.0, 60.0, 0.0), with_uv=False))
+    s = stage.texel_samples(m, 64)
+    top = stage.look_at((0.0, 1000.0, 0.0), up=(0.0, 0.0, -1.0), fov_deg=20, width=256, height=256)
+    below = stage.look_at((0.0, -1000.0, 0.0), up=(0.0, 0.0, -1.0), fov_deg=20, width=256, height=256)
+    cv = stage.camera_visibility(m, s, [top, below])
+    r = np.hypot(np.asarray(s.position)[:, 0], np.asarray(s.position)[:, 2])
+    # From above, the sphere hides a disc of radius ~30 (perspective from 1 m: slightly less than 30/(1-0.09)).
+    assert not cv[0, r < 28.0].any()
+    inside_view = r < 80.0
+    assert cv[0, (r > 36.0) & inside_view].all()
+    # From below, the plane faces away: nothing is seen.
+    assert not cv[1].any()
