@@ -10,3 +10,4 @@ from ._rig import make_rig as make_rig, voronoi_solid_angles as voronoi_solid_an
 from ._simulate import shading_directions as shading_directions, simulate as simulate
 from ._surface import Surface as Surface, texel_samples as texel_samples
 from ._visibility import camera_visibility as camera_visibility, light_visibility as light_visibility
+from ._visibility import primary_hits as primary_hits

@@ -32,8 +32,10 @@ class Surface(eqx.Module):
 
     def to_local(self, w: Float[Array, "*batch sample 3"]) -> Float[Array, "*batch sample 3"]:
         """World directions to the shading frame (z = normal)."""
-        return jnp.stack([jnp.sum(w * self.tangent, -1), jnp.sum(w * self.bitangent, -1),
-                          jnp.sum(w * self.normal, -1)], axis=-1)
+        w = jnp.asarray(w)
+        lead = (1,) * (w.ndim - 2)
+        t, b, n = (x.reshape(lead + x.shape) for x in (self.tangent, self.bitangent, self.normal))
+        return jnp.stack([jnp.sum(w * t, -1), jnp.sum(w * b, -1), jnp.sum(w * n, -1)], axis=-1)
 
     def to_texture(self, values, fill=0.0) -> np.ndarray:
         """Scatter per-sample values [P, ...] to a texture [H, W, ...] (``fill`` elsewhere)."""

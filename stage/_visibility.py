@@ -92,3 +92,27 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
         vis[cand] = _unoccluded(inter, origins[cand], np.broadcast_to(c, (len(cand), 3)), 1 << 20)
         out.append(vis)
     return np.stack(out)
+
+
+def primary_hits(mesh: Mesh, camera: Camera, supersample: int = 1):
+    """Cast one ray per (sub)pixel from ``camera``: returns hit [H', W'] bool,
+    face [H', W'] int (-1 on a miss), barycentrics [H', W', 3] and world
+    position [H', W', 3], where H' = supersample * height."""
+    s = int(supersample)
+    if s < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample}")
+    h, w = camera.height * s, camera.width * s
+    ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")
+    origin, d = camera.rays(np.stack([xs, ys], -1).reshape(-1, 2).astype(np.float32))
+    d = np.asarray(d, np.float64)
+    o = np.broadcast_to(np.asarray(origin, np.float64), d.shape)
+    locs, ray_idx, tri_idx = _intersector(mesh).intersects_location(o, d, multiple_hits=False)
+    face = np.full(h * w, -1, np.int64)
+    pos = np.zeros((h * w, 3))
+    face[ray_idx] = tri_idx
+    pos[ray_idx] = locs
+    bary = np.zeros((h * w, 3))
+    if len(ray_idx):
+        tri = mesh.vertices[mesh.faces[tri_idx]]
+        bary[ray_idx] = trimesh.triangles.points_to_barycentric(tri, locs)
+    return face.reshape(h, w) >= 0, face.reshape(h, w), bary.reshape(h, w, 3), pos.reshape(h, w, 3)

@@ -1,0 +1,205 @@
+"""Per-sample reflectance fitting with Optimistix (Levenberg-Marquardt).
+
+Model (Kang et al. 2018's Lambert + GGX form): f_r = rho_d / pi + D F G /
+(4 cos_i cos_o), GGX distribution (Walter et al. 2007), separable Smith
+masking, Schlick Fresnel with F0 = the specular albedo. The shading normal is
+the surface's. Each sample's parameters are found by least squares over every
+(view, light, channel) observation the capture marks valid:
+
+1. start: for each roughness on a grid, (rho_d, F0) enter the model linearly
+   (Schlick: F = F0 (1 - c^5') + c^5'), so they are solved in closed form and
+   the roughness with the lowest residual is kept (a 1-D search that needs no
+   luck);
+2. refine: ``optimistix.least_squares`` with Levenberg-Marquardt, ``jax.vmap``
+   over samples, in chunks over the sample axis so memory is bounded by the
+   chunk; parameters reach their bounds through smooth (sigmoid) transforms.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import lineax as lx
+import optimistix as optx
+from jaxtyping import Array, Float, Int
+
+import brdf
+import stage
+
+# The fitter's roughness prior, separate from the model's own floor: below
+# this a GGX lobe is narrower than any light stage's angular light spacing can
+# resolve (about 0.1 rad on Light Stage X), so the data cannot tell values apart.
+ALPHA_FIT_MIN = 0.02
+ALPHA_FIT_MAX = 1.0
+_ALPHA_GRID = (0.03, 0.05, 0.08, 0.12, 0.18, 0.25, 0.35, 0.5, 0.7, 1.0)
+
+
+class Fit(eqx.Module):
+    """The result of a fit: parameter maps (per sample), per-sample RMS residual,
+    the Optimistix result code (0 = successful), steps taken and a flag for
+    samples without enough valid observations."""
+
+    rho_d: Float[Array, "sample 3"]
+    f0: Float[Array, "sample 1"]
+    alpha: Float[Array, "sample 1"]
+    residual: Float[Array, " sample"]
+    result: Int[Array, " sample"]
+    steps: Int[Array, " sample"]
+    observed: Float[Array, " sample"]
+
+    def material(self) -> brdf.AbstractBRDF:
+        """The fitted BRDF (parameters with a leading sample axis)."""
+        return brdf.lambert_ggx(self.rho_d, self.f0, self.alpha)
+
+    @property
+    def failed(self):
+        return (self.result != 0) | (self.observed < _MIN_OBSERVATIONS)
+
+
+# Fewer valid lights than this leave 5 parameters underdetermined in practice.
+_MIN_OBSERVATIONS = 8
+
+
+def _sigmoid_inv(x):
+    x = jnp.clip(x, 1e-4, 1 - 1e-4)
+    return jnp.log(x) - jnp.log1p(-x)
+
+
+def _unpack(u):
+    rho_d = jax.nn.sigmoid(u[0:3])
+    f0 = jax.nn.sigmoid(u[3:4])
+    alpha = ALPHA_FIT_MIN + (ALPHA_FIT_MAX - ALPHA_FIT_MIN) * jax.nn.sigmoid(u[4:5])
+    return rho_d, f0, alpha
+
+
+def _pack(rho_d, f0, alpha):
+    a = (alpha - ALPHA_FIT_MIN) / (ALPHA_FIT_MAX - ALPHA_FIT_MIN)
+    return jnp.concatenate([_sigmoid_inv(rho_d), _sigmoid_inv(f0), _sigmoid_inv(a)], axis=-1)
+
+
+def _predict(rho_d, f0, alpha, wi, wo, irr):
+    """Radiance [N, C] for one sample: wi [N, 3], wo [N, 3], irr [N, C]."""
+    m = brdf.lambert_ggx(rho_d[None], f0[None], alpha[None])
+    cos_i = jnp.maximum(wi[:, 2:3], 0)
+    return m(wi, wo) * cos_i * irr
+
+
+def _basis(alpha, wi, wo, irr):
+    """Columns of the model that are linear in (rho_d, F0) at a fixed roughness."""
+    cos_i = jnp.maximum(wi[:, 2:3], 0)
+    one = jnp.ones((1, 1), wi.dtype)
+    zero = jnp.zeros((1, 1), wi.dtype)
+    spec_f1 = brdf.Microfacet(brdf.GGX(alpha * one), brdf.SchlickFresnel(one), "smith")(wi, wo)
+    spec_f0 = brdf.Microfacet(brdf.GGX(alpha * one), brdf.SchlickFresnel(zero), "smith")(wi, wo)
+    diffuse = cos_i * irr / jnp.pi  # [N, C], multiplies rho_d per channel
+    a = (spec_f1 - spec_f0) * cos_i * irr  # multiplies F0
+    b = spec_f0 * cos_i * irr  # constant part
+    return diffuse, a, b
+
+
+def _linear_start(obs, w, wi, wo, irr):
+    """Closed-form (rho_d, F0) per grid roughness; keep the best. obs, w: [N, C]."""
+
+    def at(alpha):
+        d, a, b = _basis(alpha, wi, wo, irr)
+        y = obs - b
+        # Normal equations of [diag rho_d | F0]: rho_d per channel, F0 shared.
+        dd = jnp.sum(w * d * d, 0)
+        da = jnp.sum(w * d * a, 0)
+        aa = jnp.sum(w * a * a)
+        dy = jnp.sum(w * d * y, 0)
+        ay = jnp.sum(w * a * y)
+        # Schur complement eliminating the 3 diagonal rho_d unknowns.
+        dd_s = jnp.maximum(dd, 1e-12)
+        s = aa - jnp.sum(da * da / dd_s)
+        f0 = jnp.clip(brdf.safe_div(ay - jnp.sum(da * dy / dd_s), s), 1e-3, 0.999)
+        rho = jnp.clip((dy - da * f0) / dd_s, 1e-3, 0.999)
+        r = obs - (d * rho[None] + a * f0 + b)
+        return jnp.sum(w * r * r), rho, f0
+
+    costs, rhos, f0s = jax.vmap(at)(jnp.asarray(_ALPHA_GRID, obs.dtype))
+    k = jnp.argmin(costs)
+    return rhos[k], f0s[k][None], jnp.asarray(_ALPHA_GRID, obs.dtype)[k][None]
+
+
+def _fit_one(obs, w, wi, wo, irr, max_steps, rtol, atol):
+    rho0, f00, a0 = _linear_start(obs, w, wi, wo, irr)
+    sw = jnp.sqrt(w)
+
+    def residual(u, _):
+        return (sw * (_predict(*_unpack(u), wi, wo, irr) - obs)).reshape(-1)
+
+    # Normal equations + Cholesky: the 5x5 system is well conditioned once LM
+    # damping is added, and it is several times cheaper than QR of [N, 5].
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    sol = optx.least_squares(residual, solver, _pack(rho0, f00, a0), max_steps=max_steps, throw=False)
+    rho, f0, alpha = _unpack(sol.value)
+    r = residual(sol.value, None)
+    n = jnp.maximum(jnp.sum(w), 1)
+    rms = jnp.sqrt(jnp.sum(r * r) / n)
+    return rho, f0, alpha, rms, sol.result._value, sol.stats["num_steps"]
+
+
+@eqx.filter_jit
+def _fit_chunk(obs, w, wi, wo, irr, max_steps, rtol, atol):
+    f = lambda o, ww, a, b, c: _fit_one(o, ww, a, b, c, max_steps, rtol, atol)  # noqa: E731
+    return jax.vmap(f)(obs, w, wi, wo, irr)
+
+
+def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, max_steps: int = 60,
+        rtol: float = 1e-6, atol: float = 1e-7, progress=None) -> Fit:
+    """Fit Lambert + GGX (rho_d [3], F0, alpha) per sample to an OLAT capture.
+
+    Observations are every (view, light, channel) with ``capture.mask`` True.
+    Samples are processed ``chunk`` at a time (``jax.vmap`` over the chunk), so
+    peak memory is bounded by the chunk. ``progress(n)`` is called per chunk.
+    NaN never leaves: a sample with too few observations keeps its closed-form
+    start (or grey defaults) and is flagged in ``Fit.failed``.
+    """
+    V, L, P, C = capture.radiance.shape
+    if surface.num_samples != P:
+        raise ValueError(f"capture has {P} samples but the surface has {surface.num_samples}")
+    if C != 3:
+        raise ValueError(f"fit expects RGB radiance (C = 3), got C = {C}")
+    outs = []
+    for s in range(0, P, chunk):
+        e = min(s + chunk, P)
+        sub = surface.subset(np.arange(s, e))
+        obs_v, w_v, wi_v, wo_v, irr_v = [], [], [], [], []
+        for v, cam in enumerate(capture.cameras):
+            wi, wo, irr = stage.shading_directions(sub, capture.rig, cam.center)
+            obs_v.append(jnp.swapaxes(capture.radiance[v, :, s:e].astype(jnp.float32), 0, 1))
+            w_v.append(jnp.swapaxes(capture.mask[v, :, s:e], 0, 1))
+            wi_v.append(jnp.swapaxes(wi, 0, 1))
+            wo_v.append(jnp.broadcast_to(wo[:, None], wi_v[-1].shape))
+            irr_v.append(jnp.swapaxes(irr, 0, 1))
+        cat = lambda xs: np.concatenate([np.asarray(x) for x in xs], axis=1)  # noqa: E731  [Pc, V*L, ...]
+        obs, wmask, wi, wo, irr = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v)
+        # Keep only valid observations (valid first, padded to the chunk's
+        # largest count, rounded up so few shapes compile): typically half of
+        # a rig's lights are behind a sample.
+        order = np.argsort(~wmask, axis=1, kind="stable")
+        n_keep = int(-(-max(int(wmask.sum(axis=1).max()), 1) // 32) * 32)
+        order = order[:, :n_keep]
+        take = lambda a: jnp.asarray(np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))  # noqa: E731
+        obs, wmask, wi, wo, irr = take(obs), take(wmask), take(wi), take(wo), take(irr)
+        # Optimistix's LM mixes its damping dtype with JAX's default float, so
+        # compute in that (float32 unless jax_enable_x64 is on).
+        dt = jnp.result_type(float)
+        w = jnp.broadcast_to(wmask[..., None].astype(dt), obs.shape)
+        res = _fit_chunk(obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt), max_steps, rtol, atol)
+        outs.append(tuple(np.asarray(x) for x in res) + (np.asarray(jnp.sum(wmask, axis=1)),))
+        if progress is not None:
+            progress(e - s)
+    rho, f0, alpha, rms, result, steps, nobs = (np.concatenate(x) for x in zip(*outs))
+    # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
+    empty = nobs < _MIN_OBSERVATIONS
+    rho = np.where(empty[:, None], 0.5, np.nan_to_num(rho, nan=0.5))
+    f0 = np.where(empty[:, None], 0.04, np.nan_to_num(f0, nan=0.04))
+    alpha = np.where(empty[:, None], 0.3, np.nan_to_num(alpha, nan=0.3))
+    rms = np.nan_to_num(rms, nan=np.inf, posinf=np.finfo(np.float32).max)
+    return Fit(rho_d=jnp.asarray(rho), f0=jnp.asarray(f0), alpha=jnp.asarray(alpha), residual=jnp.asarray(rms),
+               result=jnp.asarray(result, jnp.int32), steps=jnp.asarray(steps, jnp.int32),
+               observed=jnp.asarray(nobs, jnp.float32))

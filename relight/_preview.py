@@ -1,0 +1,54 @@
+"""Camera-view previews of texel-space results: look a texture up through the
+mesh's UVs at each primary-ray hit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import stage
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of ``texture`` [H, W, C] at uv [..., 2] (row 0 at v = 1)."""
+    h, w = texture.shape[:2]
+    x = np.clip(uv[..., 0] * w - 0.5, 0, w - 1)
+    y = np.clip((1 - uv[..., 1]) * h - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    top = texture[y0, x0] * (1 - fx) + texture[y0, x1] * fx
+    bot = texture[y1, x0] * (1 - fx) + texture[y1, x1] * fx
+    return top * (1 - fy) + bot * fy
+
+
+def texture_view(mesh: stage.Mesh, camera: stage.Camera, textures: dict[str, np.ndarray], supersample: int = 2,
+                 background: float = 0.0) -> dict[str, np.ndarray]:
+    """Each texture [H, W, C] as the camera sees the mesh, box-filtered from
+    ``supersample``^2 rays per pixel (anti-aliasing). Returns images [h, w, C]."""
+    hit, face, bary, _ = stage.primary_hits(mesh, camera, supersample)
+    uv = np.einsum("hwk,hwkc->hwc", bary, mesh.uv[mesh.faces[np.maximum(face, 0)]])
+    s = supersample
+    out = {}
+    for name, tex in textures.items():
+        img = np.where(hit[..., None], sample_texture(tex, uv), background)
+        out[name] = img.reshape(camera.height, s, camera.width, s, -1).mean(axis=(1, 3)).astype(np.float32)
+    return out
+
+
+def dilate(texture: np.ndarray, valid: np.ndarray, iterations: int = 2) -> np.ndarray:
+    """Fill texels outside the UV charts with the mean of their valid
+    4-neighbours, ``iterations`` times, so bilinear lookups at chart borders
+    do not blend in the empty background (the usual texture-bake padding)."""
+    tex = np.array(texture, dtype=np.float32, copy=True)
+    ok = np.array(valid, dtype=bool, copy=True)
+    for _ in range(iterations):
+        acc = np.zeros_like(tex)
+        cnt = np.zeros(ok.shape, np.float32)
+        for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            sh_ok = np.roll(ok, (dy, dx), axis=(0, 1))
+            acc += np.where(sh_ok[..., None], np.roll(tex, (dy, dx), axis=(0, 1)), 0)
+            cnt += sh_ok
+        grow = ~ok & (cnt > 0)
+        tex[grow] = acc[grow] / cnt[grow][:, None]
+        ok |= grow
+    return tex
