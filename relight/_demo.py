@@ -133,6 +133,8 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
         else:
             shown = np.repeat(img, 3, axis=-1) if img.shape[-1] == 1 else img
             write_png(out / f"{name}_view.png", to_uint8(tonemap(shown, curve="none")))
+    side = [to_uint8(tonemap(views[k], exposure=exposure, curve="filmic")) for k in ("relit_image_based", "relit_from_fit")]
+    write_png(out / "preview.png", np.concatenate(side, axis=1))
     settings = {"command": "relight demo", "out": str(out), "resolution": resolution, "envmap": str(envmap),
                 "image_size": image_size, "rig": "light_stage_x", "camera": "look_at (0, 0, 1300) mm, fov 11 deg"}
     _write_text(out / "settings.json", json.dumps(settings, indent=2))

@@ -163,6 +163,10 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, ma
         raise ValueError(f"capture has {P} samples but the surface has {surface.num_samples}")
     if C != 3:
         raise ValueError(f"fit expects RGB radiance (C = 3), got C = {C}")
+    # One observation count for every chunk (the largest any sample has,
+    # rounded up) so the solver compiles once.
+    n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
+    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
     outs = []
     for s in range(0, P, chunk):
         e = min(s + chunk, P)
@@ -177,11 +181,9 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, ma
             irr_v.append(jnp.swapaxes(irr, 0, 1))
         cat = lambda xs: np.concatenate([np.asarray(x) for x in xs], axis=1)  # noqa: E731  [Pc, V*L, ...]
         obs, wmask, wi, wo, irr = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v)
-        # Keep only valid observations (valid first, padded to the chunk's
-        # largest count, rounded up so few shapes compile): typically half of
-        # a rig's lights are behind a sample.
+        # Keep only valid observations (valid first, then padding): typically
+        # half of a rig's lights are behind a sample.
         order = np.argsort(~wmask, axis=1, kind="stable")
-        n_keep = int(-(-max(int(wmask.sum(axis=1).max()), 1) // 32) * 32)
         order = order[:, :n_keep]
         take = lambda a: jnp.asarray(np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))  # noqa: E731
         obs, wmask, wi, wo, irr = take(obs), take(wmask), take(wi), take(wo), take(irr)
@@ -189,8 +191,12 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, ma
         # compute in that (float32 unless jax_enable_x64 is on).
         dt = jnp.result_type(float)
         w = jnp.broadcast_to(wmask[..., None].astype(dt), obs.shape)
-        res = _fit_chunk(obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt), max_steps, rtol, atol)
-        outs.append(tuple(np.asarray(x) for x in res) + (np.asarray(jnp.sum(wmask, axis=1)),))
+        # Pad a short last chunk to the chunk size so it reuses the compiled solver.
+        pad = (chunk - (e - s)) if P > chunk else 0
+        padded = [jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1), mode="edge")
+                  for x in (obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt))]
+        res = _fit_chunk(*padded, max_steps, rtol, atol)
+        outs.append(tuple(np.asarray(x)[: e - s] for x in res) + (np.asarray(jnp.sum(wmask, axis=1)),))
         if progress is not None:
             progress(e - s)
     rho, f0, alpha, rms, result, steps, nobs = (np.concatenate(x) for x in zip(*outs))
