@@ -124,37 +124,51 @@ def _linear_start(obs, w, wi, wo, irr):
     return rhos[k], f0s[k][None], jnp.asarray(_ALPHA_GRID, obs.dtype)[k][None]
 
 
-def _fit_one(obs, w, wi, wo, irr, max_steps, rtol, atol):
-    rho0, f00, a0 = _linear_start(obs, w, wi, wo, irr)
+def _residual_fn(obs, w, wi, wo, irr):
     sw = jnp.sqrt(w)
 
     def residual(u, _):
         return (sw * (_predict(*_unpack(u), wi, wo, irr) - obs)).reshape(-1)
 
-    # Normal equations + Cholesky: the 5x5 system is well conditioned once LM
-    # damping is added, and it is several times cheaper than QR of [N, 5].
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
-    sol = optx.least_squares(residual, solver, _pack(rho0, f00, a0), max_steps=max_steps, throw=False)
-    rho, f0, alpha = _unpack(sol.value)
-    r = residual(sol.value, None)
-    n = jnp.maximum(jnp.sum(w), 1)
-    rms = jnp.sqrt(jnp.sum(r * r) / n)
-    return rho, f0, alpha, rms, sol.result._value, sol.stats["num_steps"]
+    return residual
+
+
+@jax.jit
+def _start_chunk(obs, w, wi, wo, irr):
+    """Closed-form start, packed to the unconstrained parameters [Pc, 5]."""
+    return jax.vmap(lambda *a: _pack(*_linear_start(*a)))(obs, w, wi, wo, irr)
 
 
 @eqx.filter_jit
-def _fit_chunk(obs, w, wi, wo, irr, max_steps, rtol, atol):
-    f = lambda o, ww, a, b, c: _fit_one(o, ww, a, b, c, max_steps, rtol, atol)  # noqa: E731
-    return jax.vmap(f)(obs, w, wi, wo, irr)
+def _solve_chunk(u0, obs, w, wi, wo, irr, max_steps, rtol, atol):
+    """``max_steps`` LM steps from u0 for each sample of the chunk (vmapped)."""
+
+    def one(u0, obs, w, wi, wo, irr):
+        residual = _residual_fn(obs, w, wi, wo, irr)
+        # Normal equations + Cholesky: the 5x5 system is well conditioned once
+        # LM damping is added, and several times cheaper than QR of [N, 5].
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+        sol = optx.least_squares(residual, solver, u0, max_steps=max_steps, throw=False)
+        r = residual(sol.value, None)
+        rms = jnp.sqrt(jnp.sum(r * r) / jnp.maximum(jnp.sum(w), 1))
+        return sol.value, rms, sol.result._value, sol.stats["num_steps"]
+
+    return jax.vmap(one)(u0, obs, w, wi, wo, irr)
 
 
-def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, max_steps: int = 60,
-        rtol: float = 1e-6, atol: float = 1e-7, progress=None) -> Fit:
+# least_squares reports an exhausted step budget as the nonlinear-solver code.
+_MAX_STEPS_CODE = int(optx.RESULTS.nonlinear_max_steps_reached._value)
+
+
+def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, steps_per_round: int = 20,
+        rounds: int = 3, rtol: float = 1e-6, atol: float = 1e-7, progress=None) -> Fit:
     """Fit Lambert + GGX (rho_d [3], F0, alpha) per sample to an OLAT capture.
 
     Observations are every (view, light, channel) with ``capture.mask`` True.
-    Samples are processed ``chunk`` at a time (``jax.vmap`` over the chunk), so
-    peak memory is bounded by the chunk. ``progress(n)`` is called per chunk.
+    Samples are solved ``chunk`` at a time (``jax.vmap`` over the chunk), so
+    solver memory is bounded by the chunk; each sample gets up to
+    ``rounds * steps_per_round`` LM steps, later rounds only for the samples
+    still unconverged (compacted). ``progress(n)`` reports finished samples.
     NaN never leaves: a sample with too few observations keeps its closed-form
     start (or grey defaults) and is flagged in ``Fit.failed``.
     """
@@ -163,49 +177,80 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, chunk: int = 2048, ma
         raise ValueError(f"capture has {P} samples but the surface has {surface.num_samples}")
     if C != 3:
         raise ValueError(f"fit expects RGB radiance (C = 3), got C = {C}")
+    if chunk < 1 or rounds < 1 or steps_per_round < 1:
+        raise ValueError("chunk, rounds and steps_per_round must be >= 1")
+    # Optimistix's LM mixes its damping dtype with JAX's default float, so
+    # compute in that (float32 unless jax_enable_x64 is on).
+    dt = jnp.result_type(float)
     # One observation count for every chunk (the largest any sample has,
     # rounded up) so the solver compiles once.
     n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
     n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
-    outs = []
-    for s in range(0, P, chunk):
-        e = min(s + chunk, P)
-        sub = surface.subset(np.arange(s, e))
-        obs_v, w_v, wi_v, wo_v, irr_v = [], [], [], [], []
-        for v, cam in enumerate(capture.cameras):
-            wi, wo, irr = stage.shading_directions(sub, capture.rig, cam.center)
-            obs_v.append(jnp.swapaxes(capture.radiance[v, :, s:e].astype(jnp.float32), 0, 1))
-            w_v.append(jnp.swapaxes(capture.mask[v, :, s:e], 0, 1))
-            wi_v.append(jnp.swapaxes(wi, 0, 1))
-            wo_v.append(jnp.broadcast_to(wo[:, None], wi_v[-1].shape))
-            irr_v.append(jnp.swapaxes(irr, 0, 1))
-        cat = lambda xs: np.concatenate([np.asarray(x) for x in xs], axis=1)  # noqa: E731  [Pc, V*L, ...]
-        obs, wmask, wi, wo, irr = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v)
-        # Keep only valid observations (valid first, then padding): typically
-        # half of a rig's lights are behind a sample.
-        order = np.argsort(~wmask, axis=1, kind="stable")
-        order = order[:, :n_keep]
-        take = lambda a: jnp.asarray(np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))  # noqa: E731
-        obs, wmask, wi, wo, irr = take(obs), take(wmask), take(wi), take(wo), take(irr)
-        # Optimistix's LM mixes its damping dtype with JAX's default float, so
-        # compute in that (float32 unless jax_enable_x64 is on).
-        dt = jnp.result_type(float)
-        w = jnp.broadcast_to(wmask[..., None].astype(dt), obs.shape)
-        # Pad a short last chunk to the chunk size so it reuses the compiled solver.
-        pad = (chunk - (e - s)) if P > chunk else 0
-        padded = [jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1), mode="edge")
-                  for x in (obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt))]
-        res = _fit_chunk(*padded, max_steps, rtol, atol)
-        outs.append(tuple(np.asarray(x)[: e - s] for x in res) + (np.asarray(jnp.sum(wmask, axis=1)),))
-        if progress is not None:
-            progress(e - s)
-    rho, f0, alpha, rms, result, steps, nobs = (np.concatenate(x) for x in zip(*outs))
+    data = [_observations(capture, surface, s, min(s + chunk, P), n_keep, dt) for s in range(0, P, chunk)]
+    data = [np.concatenate(x) for x in zip(*data)]  # obs, w, wi, wo, irr: [P, n_keep, ...]
+
+    def padded(index):
+        """Chunks of ``index``, each padded (repeating its last entry) to ``chunk``."""
+        for s in range(0, len(index), chunk):
+            idx = index[s:s + chunk]
+            if P > chunk:
+                idx = np.concatenate([idx, np.full(chunk - len(idx), idx[-1])])
+            yield s, idx, min(chunk, len(index) - s)
+
+    every = np.arange(P)
+    u = np.zeros((P, 5), dtype=dt)
+    for _, idx, n in padded(every):
+        u[idx[:n]] = np.asarray(_start_chunk(*(jnp.asarray(x[idx]) for x in data)))[:n]
+    rms = np.zeros(P, dt)
+    result = np.zeros(P, np.int32)
+    steps = np.zeros(P, np.int32)
+    # Straggler compaction: every sample gets ``steps_per_round`` LM steps;
+    # only those still unconverged go on, packed into full chunks, so a few
+    # sharp highlights do not hold a whole vmapped chunk for 60 steps.
+    active = every
+    for _ in range(rounds):
+        for _, idx, n in padded(active):
+            out = _solve_chunk(jnp.asarray(u[idx]), *(jnp.asarray(x[idx]) for x in data), steps_per_round, rtol, atol)
+            uu, rr, code, k = (np.asarray(x)[:n] for x in out)
+            sel = idx[:n]
+            u[sel], rms[sel], result[sel], steps[sel] = uu, rr, code, steps[sel] + k
+            if progress is not None:
+                progress(int(np.sum(code != _MAX_STEPS_CODE)) if active is not every else n)
+        active = active[result[active] == _MAX_STEPS_CODE]
+        if len(active) == 0:
+            break
+    rho, f0, alpha = (np.asarray(x) for x in _unpack(jnp.asarray(u).T[:, :, None]))
+    rho, f0, alpha = rho[:, :, 0].T, f0[:, :, 0].T, alpha[:, :, 0].T
+    nobs = n_valid.astype(np.float32)
     # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
     empty = nobs < _MIN_OBSERVATIONS
     rho = np.where(empty[:, None], 0.5, np.nan_to_num(rho, nan=0.5))
     f0 = np.where(empty[:, None], 0.04, np.nan_to_num(f0, nan=0.04))
     alpha = np.where(empty[:, None], 0.3, np.nan_to_num(alpha, nan=0.3))
-    rms = np.nan_to_num(rms, nan=np.inf, posinf=np.finfo(np.float32).max)
+    rms = np.nan_to_num(rms, nan=np.finfo(np.float32).max, posinf=np.finfo(np.float32).max)
     return Fit(rho_d=jnp.asarray(rho), f0=jnp.asarray(f0), alpha=jnp.asarray(alpha), residual=jnp.asarray(rms),
                result=jnp.asarray(result, jnp.int32), steps=jnp.asarray(steps, jnp.int32),
                observed=jnp.asarray(nobs, jnp.float32))
+
+
+def _observations(capture, surface, s, e, n_keep, dt):
+    """Per-sample observation arrays [e - s, n_keep, ...] for samples s..e:
+    radiance, weights (1 valid / 0 padding), wi, wo (local) and irradiance."""
+    sub = surface.subset(np.arange(s, e))
+    obs_v, w_v, wi_v, wo_v, irr_v = [], [], [], [], []
+    for v, cam in enumerate(capture.cameras):
+        wi, wo, irr = stage.shading_directions(sub, capture.rig, cam.center)
+        obs_v.append(np.swapaxes(np.asarray(capture.radiance[v, :, s:e], np.float32), 0, 1))
+        w_v.append(np.swapaxes(np.asarray(capture.mask[v, :, s:e]), 0, 1))
+        wi_v.append(np.swapaxes(np.asarray(wi), 0, 1))
+        wo_v.append(np.broadcast_to(np.asarray(wo)[:, None], wi_v[-1].shape))
+        irr_v.append(np.swapaxes(np.asarray(irr), 0, 1))
+    cat = lambda xs: np.concatenate(xs, axis=1)  # noqa: E731  [Pc, V*L, ...]
+    obs, wmask, wi, wo, irr = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v)
+    # Keep only valid observations (valid first, then padding): typically
+    # half of a rig's lights are behind a sample.
+    order = np.argsort(~wmask, axis=1, kind="stable")[:, :n_keep]
+    take = lambda a: np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)  # noqa: E731
+    obs, wmask, wi, wo, irr = take(obs), take(wmask), take(wi), take(wo), take(irr)
+    w = np.broadcast_to(wmask[..., None], obs.shape).astype(dt)
+    return obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt)
