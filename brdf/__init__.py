@@ -1,1 +1,56 @@
-from ._safe import safe_acos as safe_acos, safe_div as safe_div, safe_log as safe_log, safe_normalize as safe_normalize, safe_sqrt as safe_sqrt
+"""brdf: reflectance models in the local shading frame (z = normal), pure and
+safe under jax.jit, jax.vmap and jax.grad. See docs/brdf.md."""
+
+from ._base import AbstractBRDF as AbstractBRDF
+from ._base import ParamSpec as ParamSpec
+from ._base import from_unconstrained as from_unconstrained
+from ._base import get_params as get_params
+from ._base import set_params as set_params
+from ._base import to_unconstrained as to_unconstrained
+from ._beckmann import Beckmann as Beckmann
+from ._cook_torrance import CookTorrance as CookTorrance
+from ._diffuse import BurleyDiffuse as BurleyDiffuse
+from ._diffuse import OrenNayar as OrenNayar
+from ._distribution import ALPHA_MIN as ALPHA_MIN
+from ._distribution import AbstractMicrofacetDistribution as AbstractMicrofacetDistribution
+from ._fresnel import AbstractFresnel as AbstractFresnel
+from ._fresnel import ConductorFresnel as ConductorFresnel
+from ._fresnel import DielectricFresnel as DielectricFresnel
+from ._fresnel import SchlickFresnel as SchlickFresnel
+from ._fresnel import fresnel_complex as fresnel_complex
+from ._fresnel import fresnel_conductor as fresnel_conductor
+from ._fresnel import fresnel_dielectric as fresnel_dielectric
+from ._fresnel import fresnel_schlick as fresnel_schlick
+from ._ggx import GGX as GGX
+from ._lambert import Lambert as Lambert
+from ._merl import MERL as MERL
+from ._merl import MERL_RES as MERL_RES
+from ._merl import MERL_SCALE as MERL_SCALE
+from ._merl import half_diff_coords as half_diff_coords
+from ._merl import half_diff_to_directions as half_diff_to_directions
+from ._merl import merl_bin_centers as merl_bin_centers
+from ._merl import merl_index as merl_index
+from ._merl import read_merl as read_merl
+from ._merl import tabulate_merl as tabulate_merl
+from ._merl import write_merl as write_merl
+from ._microfacet import Microfacet as Microfacet
+from ._microfacet import lambert_ggx as lambert_ggx
+from ._phong import BlinnPhong as BlinnPhong
+from ._phong import ModifiedPhong as ModifiedPhong
+from ._phong import Phong as Phong
+from ._safe import dot as dot
+from ._safe import safe_acos as safe_acos
+from ._safe import safe_atan2 as safe_atan2
+from ._safe import safe_pow as safe_pow
+from ._safe import safe_div as safe_div
+from ._safe import safe_log as safe_log
+from ._safe import safe_normalize as safe_normalize
+from ._safe import safe_sqrt as safe_sqrt
+from ._sum import Sum as Sum
+from ._ward import Ward as Ward
+from ._sampling import pdf_cosine_hemisphere as pdf_cosine_hemisphere
+from ._sampling import pdf_uniform_hemisphere as pdf_uniform_hemisphere
+from ._sampling import sample_concentric_disk as sample_concentric_disk
+from ._sampling import sample_cosine_hemisphere as sample_cosine_hemisphere
+from ._sampling import sample_uniform_hemisphere as sample_uniform_hemisphere
+from . import check as check

@@ -31,10 +31,20 @@ def safe_div(num: ArrayLike, den: ArrayLike, fallback: ArrayLike = 0.0) -> Array
     return jnp.where(ok, num / jnp.where(ok, den, 1), fallback)
 
 
+def dot(a: Float[Array, "*batch 3"], b: Float[Array, "*batch 3"]) -> Float[Array, "*batch 1"]:
+    """Dot product over the last axis (length 3), keeping it as length 1.
+
+    Written as three products rather than ``jnp.sum``: XLA's CPU backend turns a
+    reduction into its own fusion, which splits an otherwise elementwise kernel
+    into several loops that each go through memory (see docs/brdf.md, Speed).
+    """
+    return a[..., 0:1] * b[..., 0:1] + a[..., 1:2] * b[..., 1:2] + a[..., 2:3] * b[..., 2:3]
+
+
 def safe_normalize(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """v / |v| along the last axis; the zero vector (finite gradient) where |v| ~ 0."""
     v = jnp.asarray(v)
-    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    sq = dot(v, v)
     ok = sq > _TINY_SQ
     inv = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, sq, 1)), 0)
     return v * inv
@@ -57,3 +67,22 @@ def safe_log(x: ArrayLike, floor: float = 1e-30) -> Array:
     x = jnp.asarray(x)
     ok = x > floor
     return jnp.where(ok, jnp.log(jnp.where(ok, x, 1)), jnp.log(jnp.asarray(floor, x.dtype)))
+
+
+def safe_pow(x: ArrayLike, p: ArrayLike) -> Array:
+    """max(x, 0) ** p, 0 where x <= 0, with finite gradients in x and p there.
+
+    ``jnp.power(0, p)`` has the gradient ``0**p * log(0)`` = NaN in p; here the
+    masked lane computes exp(p * log(1)) and its gradient is 0.
+    """
+    x = jnp.asarray(x)
+    ok = x > 0
+    return jnp.where(ok, jnp.exp(p * jnp.log(jnp.where(ok, x, 1))), 0)
+
+
+def safe_atan2(y: ArrayLike, x: ArrayLike) -> Array:
+    """atan2(y, x), 0 (gradient 0) at the origin where the angle is undefined."""
+    y = jnp.asarray(y)
+    x = jnp.asarray(x)
+    ok = (x != 0) | (y != 0)
+    return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0), jnp.where(ok, x, 1)), 0)

@@ -44,8 +44,28 @@ def voronoi_solid_angles(directions: np.ndarray) -> np.ndarray:
     i, j = np.unravel_index(np.argmax(gram), gram.shape)
     if gram[i, j] > np.cos(_COINCIDENT_RAD):
         raise ValueError(f"rig has coincident lights: lights {i} and {j} point the same way")
+    # Lights on one great circle (a gonioreflectometer arc, a ring): the Voronoi
+    # cells are lunes from pole to pole, of area 2 x their angular width.
+    _, sing, vt = np.linalg.svd(d, full_matrices=False)
+    if sing[-1] < 1e-9 * sing[0]:
+        return _great_circle_solid_angles(d, vt[-1])
     sv = SphericalVoronoi(d, radius=1.0, center=np.zeros(3))
     return sv.calculate_areas()
+
+
+def _great_circle_solid_angles(d: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Lune areas 2 * (angular width) of directions lying on the great circle normal to ``axis``."""
+    e1 = d[0] - axis * (d[0] @ axis)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    phi = np.mod(np.arctan2(d @ e2, d @ e1), 2 * np.pi)
+    order = np.argsort(phi)
+    ps = phi[order]
+    gap_next = np.diff(np.concatenate([ps, ps[:1] + 2 * np.pi]))
+    gap_prev = np.roll(gap_next, 1)
+    width = np.empty_like(phi)
+    width[order] = 0.5 * (gap_next + gap_prev)
+    return 2.0 * width
 
 
 class Rig(eqx.Module):
@@ -117,9 +137,15 @@ class Rig(eqx.Module):
         )
 
 
-def make_rig(position, intensity=1.0, near_field: bool = True, channels: int = 3) -> Rig:
+def make_rig(position, intensity=1.0, near_field: bool = True, channels: int = 3, calibration=None) -> Rig:
     """A rig from light positions [L, 3] (mm; directions for distant lights) with
-    Voronoi solid angles; ``intensity`` is a scalar, [L] or [L, C]."""
+    Voronoi solid angles; ``intensity`` is a scalar, [L] or [L, C].
+
+    ``calibration`` (optional, scalar, [C] or [L, C], unitless) multiplies the
+    intensities: the per-light RGB calibration a light stage measures with a
+    colour chart or a white sphere (see ``calibrate``). Raises ValueError on no
+    lights, a light at the centre, coincident lights, or negative values.
+    """
     pos = np.asarray(position, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[1] != 3:
         raise ValueError(f"light positions must have shape [L, 3], got {pos.shape}")
@@ -139,6 +165,8 @@ def make_rig(position, intensity=1.0, near_field: bool = True, channels: int = 3
         raise ValueError(f"intensity has {inten.shape[0]} rows for {pos.shape[0]} lights")
     if np.any(inten < 0) or not np.all(np.isfinite(inten)):
         raise ValueError("light intensities must be finite and non-negative")
+    if calibration is not None:
+        inten = inten * _calibration_array(calibration, inten.shape)
     omega = voronoi_solid_angles(pos)
     return Rig(
         position=jnp.asarray(pos, dtype=jnp.float32),
@@ -228,3 +256,192 @@ def light_stage_x(ordering: str = "all", intensity: float | None = None) -> Rig:
     if intensity is None:
         intensity = float(np.mean(np.sum(pos**2, axis=1)))
     return make_rig(pos, intensity, near_field=True)
+
+
+def _calibration_array(calibration, shape) -> np.ndarray:
+    cal = np.asarray(calibration, dtype=np.float64)
+    if cal.ndim == 1 and cal.shape[0] == shape[1]:
+        cal = np.broadcast_to(cal[None], shape)
+    try:
+        cal = np.broadcast_to(cal, shape)
+    except ValueError:
+        raise ValueError(f"calibration must be a scalar, [C={shape[1]}] or [L, C]={shape}, got {np.shape(calibration)}") from None
+    if not np.all(np.isfinite(cal)) or np.any(cal < 0):
+        raise ValueError("calibration gains must be finite and non-negative")
+    return cal
+
+
+def calibrate(rig: Rig, gains) -> Rig:
+    """The rig with each light's intensity multiplied by its RGB calibration gain.
+
+    ``gains``: scalar, [C] (one colour gain for every light) or [L, C]
+    (unitless). A light stage measures them by imaging a white diffuse target
+    (or a chrome/white sphere pair) under each light and dividing by the
+    nominal response; ``calibrate(rig, measured / nominal)`` reproduces the
+    calibrated rig. Geometry and solid angles are unchanged.
+    """
+    g = _calibration_array(gains, tuple(rig.intensity.shape))
+    return Rig(position=rig.position, intensity=jnp.asarray(np.asarray(rig.intensity, np.float64) * g, rig.intensity.dtype),
+               solid_angle=rig.solid_angle, near_field=rig.near_field)
+
+
+def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False, irradiance: float = 1.0,
+                     hemisphere: bool = False) -> Rig:
+    """``n`` lights on a Fibonacci (golden-angle) spiral: the nearly uniform
+    point set of Gonzalez 2010 ("Measurement of areas on a sphere using
+    Fibonacci and latitude-longitude lattices"), z_k = 1 - (2k + 1)/n,
+    phi_k = 2 pi k / golden ratio, with the stage's y axis as the pole.
+
+    With ``hemisphere`` the points cover only the upper half (y > 0). Distant
+    lights delivering ``irradiance`` by default; with ``near_field``, point
+    sources at ``radius_mm`` (mm) giving that irradiance at the centre.
+    """
+    n = int(n)
+    if n < 4:
+        raise ValueError(f"a Fibonacci sphere rig needs n >= 4 lights, got {n}")
+    k = np.arange(n, dtype=np.float64)
+    golden = (1 + 5**0.5) / 2
+    y = 1 - (2 * k + 1) / n
+    if hemisphere:
+        y = 1 - (k + 0.5) / n
+    r = np.sqrt(np.maximum(1 - y * y, 0))
+    phi = 2 * np.pi * k / golden
+    dirs = np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=1)
+    inten = irradiance * (radius_mm**2 if near_field else 1.0)
+    return make_rig(dirs * radius_mm, inten, near_field=near_field)
+
+
+def _read_table(path, name: str, cols: int) -> np.ndarray:
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name} file not found: {path}")
+    try:
+        a = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {name} must be rows of {cols} numbers ({exc})") from exc
+    if a.shape[1] != cols or a.shape[0] == 0:
+        raise ValueError(f"{path}: {name} must be rows of {cols} numbers, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{path}: {name} contains NaN or Inf")
+    return a
+
+
+def directional_rig(directions_path, intensities_path=None) -> Rig:
+    """A distant-light rig read from DiLiGenT-style text files (Shi et al. 2016,
+    "A Benchmark Dataset and Evaluation for Non-Lambertian and Uncalibrated
+    Photometric Stereo"): ``light_directions.txt`` holds one unit direction
+    "x y z" per line, in the camera frame x right, y up, z toward the camera —
+    the stage frame, so no conversion — and ``light_intensities.txt`` one RGB
+    intensity "r g b" per line (relative irradiance, unitless). Without the
+    intensities every light delivers irradiance 1.
+
+    Raises ValueError naming the file when a row is malformed, the counts
+    disagree, a direction is not unit length (tolerance 1e-3) or two lights
+    coincide.
+    """
+    d = _read_table(directions_path, "light directions", 3)
+    norm = np.linalg.norm(d, axis=1)
+    bad = np.nonzero(np.abs(norm - 1) > 1e-3)[0]
+    if len(bad):
+        raise ValueError(f"{directions_path}: light direction on line {bad[0] + 1} has length {norm[bad[0]]:.4f}, expected 1")
+    if intensities_path is None:
+        inten = np.ones((len(d), 3))
+    else:
+        inten = _read_table(intensities_path, "light intensities", 3)
+        if len(inten) != len(d):
+            raise ValueError(f"{intensities_path}: {len(inten)} intensity rows for {len(d)} light directions in {directions_path}")
+    try:
+        return make_rig(d / norm[:, None], inten, near_field=False)
+    except ValueError as exc:
+        raise ValueError(f"{directions_path}: {exc}") from exc
+
+
+class Gonioreflectometer(eqx.Module):
+    """A gonioreflectometer measurement set (Ward 1992, "Measuring and Modeling
+    Anisotropic Reflection", section 2): a planar sample at the origin with its
+    normal along +y, a light moving on an arc and a sensor moving on an arc.
+
+    ``rig``: one near-field light per incident angle (in the plane phi_i);
+    ``cameras``: one pinhole sensor per (theta_o, phi_o) configuration, looking
+    at the sample centre; ``theta_i``, ``theta_o``, ``phi_o`` in radians.
+    """
+
+    rig: Rig
+    cameras: tuple
+    theta_i: Float[Array, " light"]
+    theta_o: Float[Array, " view"]
+    phi_o: Float[Array, " view"]
+
+
+def _arc_points(theta, phi, radius):
+    # Sample normal +y; phi measured from +x toward +z.
+    return radius * np.stack([np.sin(theta) * np.cos(phi), np.cos(theta), np.sin(theta) * np.sin(phi)], axis=-1)
+
+
+def gonioreflectometer(theta_i_deg, theta_o_deg, phi_o_deg=(0.0,), phi_i_deg: float = 180.0,
+                       light_radius_mm: float = 1000.0, sensor_radius_mm: float = 600.0,
+                       sensor_resolution: int = 32, sensor_fov_deg: float = 2.0, irradiance: float = 1.0):
+    """Ward's gonioreflectometer as a rig plus cameras (see ``Gonioreflectometer``).
+
+    Lights at polar angles ``theta_i_deg`` on the arc of azimuth ``phi_i_deg``
+    at ``light_radius_mm``; sensors at every (theta_o, phi_o) on an arc of
+    ``sensor_radius_mm`` (the sensor arc rotates about the normal to reach each
+    phi_o). Each light is a point source giving ``irradiance`` at normal
+    incidence at the sample centre. The lights all lie on one great circle, so
+    their solid angles are lunes (2 x angular spacing), which still sum to 4 pi.
+    """
+    from ._camera import look_at
+
+    ti = np.deg2rad(np.atleast_1d(np.asarray(theta_i_deg, np.float64)))
+    to = np.deg2rad(np.atleast_1d(np.asarray(theta_o_deg, np.float64)))
+    po = np.deg2rad(np.atleast_1d(np.asarray(phi_o_deg, np.float64)))
+    for name, a in (("theta_i_deg", ti), ("theta_o_deg", to)):
+        if a.size == 0 or np.any(a < 0) or np.any(a >= np.pi / 2):
+            raise ValueError(f"gonioreflectometer: {name} must be non-empty and in [0, 90) degrees")
+    lights = _arc_points(ti, np.deg2rad(phi_i_deg), light_radius_mm)
+    if len(lights) < 3:
+        raise ValueError("gonioreflectometer: give at least 3 incident angles (the rig's solid angles need them)")
+    rig = make_rig(lights, irradiance * light_radius_mm**2, near_field=True)
+    T, Pp = np.meshgrid(to, po, indexing="ij")
+    eyes = _arc_points(T.ravel(), Pp.ravel(), sensor_radius_mm)
+    cams = []
+    for e, t in zip(eyes, T.ravel()):
+        # At normal view, 'up' along +y is parallel to the view direction: use -z then.
+        up = (0.0, 1.0, 0.0) if t > 1e-6 else (0.0, 0.0, -1.0)
+        cams.append(look_at(e, (0.0, 0.0, 0.0), up=up, fov_deg=sensor_fov_deg,
+                            width=sensor_resolution, height=sensor_resolution))
+    return Gonioreflectometer(rig=rig, cameras=tuple(cams), theta_i=jnp.asarray(ti, jnp.float32),
+                              theta_o=jnp.asarray(T.ravel(), jnp.float32), phi_o=jnp.asarray(Pp.ravel(), jnp.float32))
+
+
+def light_stage_x_faces(source: str = "table") -> np.ndarray:
+    """Triangulation of the 85 polarized Light Stage X lights: int [F, 3],
+    0-based indices into ``light_stage_x("polarized")``, wound counter-clockwise
+    seen from outside (outward normals).
+
+    ``source="table"``: the bundled table's faces (1-based in the file),
+    with its repeated faces removed (the file repeats two triangles 5 and 6
+    times: 177 rows, 168 distinct). Note: the table's fan around polarized
+    light 78 (raw row 322) was built with that light at the duplicated
+    position of row 197; with the restored position, the triangulation of the
+    actual directions is ``source="hull"`` (their convex hull, 166 faces),
+    which shares 156 faces with the table.
+    """
+    pos = np.asarray(light_stage_x("polarized").position, np.float64)
+    if source == "table":
+        f = np.asarray(_lsx_table()["faces"], np.int64) - 1
+        _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+        f = f[np.sort(first)]
+    elif source == "hull":
+        from scipy.spatial import ConvexHull
+
+        f = ConvexHull(pos / np.linalg.norm(pos, axis=1, keepdims=True)).simplices.astype(np.int64)
+    else:
+        raise ValueError(f"source must be 'table' or 'hull', got {source!r}")
+    v = pos[f]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    inward = np.sum(n * v.mean(axis=1), axis=1) < 0
+    f[inward] = f[inward][:, ::-1]
+    return f

@@ -14,7 +14,10 @@ class Surface(eqx.Module):
     """P surface samples: world position [P, 3] (mm), shading frame normal /
     tangent / bitangent [P, 3] (right-handed, t x b = n), uv [P, 2], area [P]
     (mm^2), and where each sample lives on the ``resolution`` texel grid
-    (``texel_index`` [P] into the row-major grid, row 0 at v = 1)."""
+    (``texel_index`` [P] into the row-major grid, row 0 at v = 1), the mesh
+    ``face`` [P] each sample lies on and its ``barycentric`` [P, 3] coordinates
+    in that face. Image-space samples (``image_samples``) use the same type with
+    the image as the grid (``texel_index`` = row * width + column)."""
 
     position: Float[Array, "sample 3"]
     normal: Float[Array, "sample 3"]
@@ -25,6 +28,7 @@ class Surface(eqx.Module):
     texel_index: Int[Array, " sample"]
     face: Int[Array, " sample"]
     resolution: tuple[int, int] = eqx.field(static=True)
+    barycentric: Float[Array, "sample 3"] | None = None
 
     @property
     def num_samples(self) -> int:
@@ -46,11 +50,13 @@ class Surface(eqx.Module):
         return out.reshape((h, w) + values.shape[1:])
 
     def subset(self, index) -> "Surface":
+        """The samples ``index`` (an index array or boolean mask over P)."""
         index = np.asarray(index)
         take = lambda a: jnp.asarray(np.asarray(a)[index])  # noqa: E731
         return Surface(position=take(self.position), normal=take(self.normal), tangent=take(self.tangent),
                        bitangent=take(self.bitangent), uv=take(self.uv), area=take(self.area),
-                       texel_index=take(self.texel_index), face=take(self.face), resolution=self.resolution)
+                       texel_index=take(self.texel_index), face=take(self.face), resolution=self.resolution,
+                       barycentric=None if self.barycentric is None else take(self.barycentric))
 
 
 def _orthonormal_frame(n, t_guess):
@@ -131,4 +137,5 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return Surface(position=f32(pos), normal=f32(nrm), tangent=f32(t), bitangent=f32(b), uv=f32(uv),
                    area=f32(area), texel_index=jnp.asarray(idx_unique, jnp.int32),
-                   face=jnp.asarray(tri, jnp.int32), resolution=(int(h), int(w)))
+                   face=jnp.asarray(tri, jnp.int32), resolution=(int(h), int(w)),
+                   barycentric=f32(lam[:, :, 0]))

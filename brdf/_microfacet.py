@@ -1,0 +1,129 @@
+"""The composable microfacet reflection model and the foundation model
+``lambert_ggx`` (a Lambert base plus a GGX specular lobe)."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ._base import AbstractBRDF, ParamSpec, check_directions, check_module_rank, cos_theta
+from ._distribution import AbstractMicrofacetDistribution
+from ._fresnel import AbstractFresnel, SchlickFresnel
+from ._ggx import GGX
+from ._lambert import Lambert
+from ._safe import dot, safe_div, safe_normalize
+from ._sum import Sum
+
+MASKINGS = ("smith", "smith_height_correlated", "v_groove")
+
+
+def masking_over_cos(
+    distribution: AbstractMicrofacetDistribution,
+    masking: str,
+    wi: Float[Array, "*batch 3"],
+    wo: Float[Array, "*batch 3"],
+    wm: Float[Array, "*batch 3"],
+) -> Float[Array, "*batch C"]:
+    """G(wi, wo, wm) / (4 cos_i cos_o), evaluated without dividing by the cosines
+    so that it stays finite at grazing angles (cos = 1e-7) for every masking:
+
+    - ``"smith"``: separable G1(wi) G1(wo) (Walter et al. 2007, eq. 23).
+    - ``"smith_height_correlated"``: 1 / (1 + Lambda(wi) + Lambda(wo)) (Heitz 2014, eq. 99).
+    - ``"v_groove"``: min(1, 2 zm zo / (wo.wm), 2 zm zi / (wo.wm)) (Cook & Torrance
+      1982, after Torrance & Sparrow 1967).
+
+    Only meaningful where both directions are above the horizon (the caller masks).
+    """
+    zi, zo = cos_theta(wi), cos_theta(wo)
+    if masking == "smith":
+        return 0.25 * distribution.g1_over_cos(wi) * distribution.g1_over_cos(wo)
+    if masking == "smith_height_correlated":
+        den = zi * zo + zo * distribution.lambda_cos(wi) + zi * distribution.lambda_cos(wo)
+        return safe_div(0.25, den)
+    if masking == "v_groove":
+        lo = jnp.minimum(zi, zo)
+        hi = jnp.maximum(zi, zo)
+        zm = cos_theta(wm)
+        h = dot(wo, wm)
+        # G = 2 zm lo / h when that is < 1; then G / (4 zi zo) = zm / (2 h hi).
+        shadowed = 2.0 * zm * lo < h
+        return jnp.where(shadowed, safe_div(zm, 2.0 * h * hi), safe_div(1.0, 4.0 * lo * hi))
+    raise ValueError(f"masking must be one of {MASKINGS}, got {masking!r}")
+
+
+class Microfacet(AbstractBRDF):
+    """Microfacet reflection f_r = D(wm) F(wi.wm) G(wi, wo) / (4 cos_i cos_o)
+    (Cook & Torrance 1982; Walter et al. 2007, eq. 20), wm = normalize(wi + wo).
+
+    ``distribution``: GGX or Beckmann; ``fresnel``: SchlickFresnel, ConductorFresnel
+    or DielectricFresnel; ``masking``: ``"smith"`` (separable G1 G1),
+    ``"smith_height_correlated"`` or ``"v_groove"``. Reciprocal. With a Fresnel
+    <= 1 its directional albedo is <= 1 (Smith masking loses the energy of
+    multiple scattering; V-groove does not bound it exactly at high roughness).
+    """
+
+    distribution: AbstractMicrofacetDistribution
+    fresnel: AbstractFresnel
+    masking: str = eqx.field(static=True)
+
+    def __init__(self, distribution: AbstractMicrofacetDistribution, fresnel: AbstractFresnel,
+                 masking: str = "smith"):
+        if not isinstance(distribution, AbstractMicrofacetDistribution):
+            raise ValueError(f"Microfacet: distribution must be a GGX or Beckmann module, got {type(distribution).__name__}")
+        if not isinstance(fresnel, AbstractFresnel):
+            raise ValueError(f"Microfacet: fresnel must be a Fresnel module, got {type(fresnel).__name__}")
+        if masking not in MASKINGS:
+            raise ValueError(f"Microfacet: masking must be one of {MASKINGS}, got {masking!r}")
+        self.distribution = distribution
+        self.fresnel = fresnel
+        self.masking = masking
+
+    def __call__(self, wi: Float[Array, "*batch 3"], wo: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
+        """f_r in 1/sr; 0 where either direction is at or below the horizon."""
+        wi, wo = check_directions("Microfacet", wi, wo)
+        check_module_rank(self, wi.ndim)
+        active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        wm = safe_normalize(wi + wo)
+        cos_d = dot(wi, wm)
+        f = self.distribution.D(wm) * self.fresnel(cos_d) * masking_over_cos(
+            self.distribution, self.masking, wi, wo, wm
+        )
+        return jnp.where(active, f, 0.0)
+
+    def sample(self, wo: Float[Array, "*batch 3"], u: Float[Array, "*batch 2"]):
+        """(wi, pdf): wi reflected about a microfacet normal from
+        ``distribution.sample_wm``; pdf in 1/sr over wi is pdf_wm / (4 wo.wm)
+        (Walter et al. 2007, eq. 14). pdf is 0 (and wi may point down) where the
+        sample leaves the upper hemisphere."""
+        wm = self.distribution.sample_wm(wo, u)
+        wo_wm = dot(wo, wm)
+        wi = 2.0 * wo_wm * wm - wo
+        return wi, self.pdf(wo, wi)
+
+    def pdf(self, wo: Float[Array, "*batch 3"], wi: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
+        """Density of ``sample`` over wi, in 1/sr; 0 when either direction is below the horizon."""
+        active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        wm = safe_normalize(wi + wo)
+        wo_wm = dot(wo, wm)
+        p = safe_div(self.distribution.pdf_wm(wo, wm), 4.0 * wo_wm)
+        return jnp.where(active, p, 0.0)
+
+    def fittable(self) -> dict[str, ParamSpec]:
+        """The distribution's and the Fresnel term's parameters, prefixed
+        ``distribution.`` and ``fresnel.``."""
+        out = {f"distribution.{k}": v for k, v in self.distribution.fittable().items()}
+        out.update({f"fresnel.{k}": v for k, v in self.fresnel.fittable().items()})
+        return out
+
+
+def lambert_ggx(rho_d: ArrayLike, f0: ArrayLike, alpha: ArrayLike) -> Sum:
+    """The foundation model (the form Kang et al. 2018 fit):
+    f_r = rho_d / pi + D_GGX F_Schlick(f0) G_smith / (4 cos_i cos_o).
+
+    ``rho_d`` [*batch, 3] diffuse albedo, ``f0`` [*batch, 1] specular albedo
+    (Schlick reflectance at normal incidence), ``alpha`` [*batch, 1] isotropic GGX
+    roughness. Fittable names: ``terms.0.albedo``, ``terms.1.fresnel.f0``,
+    ``terms.1.distribution.alpha_x``.
+    """
+    return Sum(Lambert(rho_d), Microfacet(GGX(alpha), SchlickFresnel(f0), "smith"))

@@ -1,0 +1,56 @@
+"""Atomic file writes: write to a temporary name in the destination folder,
+flush it to disk, then ``os.replace`` it over the target.
+
+Why the same folder: ``os.replace`` is atomic only within one file system, and
+a temporary file next to the target is on the same one. A crash (or an
+exception in the encoder) therefore leaves either the old file or the new one,
+never a half-written image; the temporary file is removed on failure.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+__all__: list[str] = []  # private helpers; the public writers live in relight.io
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; on success, rename it to ``path``.
+
+    The caller writes the whole file to the yielded path (by name, for
+    libraries such as OpenEXR that only write to a file name). On an exception
+    the temporary file is deleted and the exception propagates; ``path`` is
+    untouched.
+    """
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{path}: cannot write, folder {folder} does not exist")
+    # Keep the real suffix last: some encoders (OpenEXR) look at nothing but
+    # the name they are given, and a recognisable suffix helps debugging.
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=folder)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        # Flush the bytes before the rename so a power cut cannot expose an
+        # empty file under the final name.
+        with open(tmp_path, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp_path, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, write: Callable[[object], None]) -> None:
+    """Open a temporary binary file next to ``path``, call ``write(fh)``, then rename."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            write(fh)

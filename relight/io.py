@@ -1,0 +1,56 @@
+"""File IO for the relighting tool: OpenEXR, Radiance HDR, PFM, PNG, capture
+folders and DiLiGenT-style multi-light data. All writes are atomic; bad input
+raises ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
+See docs/relight_io.md for the formats and conventions."""
+
+from ._io_capture import CaptureData as CaptureData
+from ._io_capture import CaptureReader as CaptureReader
+from ._io_capture import open_capture as open_capture
+from ._io_capture import read_capture as read_capture
+from ._io_capture import write_capture as write_capture
+from ._io_diligent import DiligentData as DiligentData
+from ._io_diligent import read_diligent as read_diligent
+from ._io_errors import ImageFormatError as ImageFormatError
+from ._io_errors import check_radiance as check_radiance
+from ._io_exr import ExrPart as ExrPart
+from ._io_exr import exr_header as exr_header
+from ._io_exr import read_exr as read_exr
+from ._io_exr import read_exr_channels as read_exr_channels
+from ._io_exr import read_exr_parts as read_exr_parts
+from ._io_exr import write_exr as write_exr
+from ._io_exr import write_exr_channels as write_exr_channels
+from ._io_exr import write_exr_parts as write_exr_parts
+from ._io_hdr import read_hdr as read_hdr
+from ._io_hdr import read_hdr_header as read_hdr_header
+from ._io_hdr import write_hdr as write_hdr
+from ._io_pfm import read_pfm as read_pfm
+from ._io_pfm import write_pfm as write_pfm
+from ._io_png import read_png as read_png
+from ._io_png import write_png as write_png
+
+__all__ = [
+    "CaptureData",
+    "CaptureReader",
+    "DiligentData",
+    "ExrPart",
+    "ImageFormatError",
+    "check_radiance",
+    "exr_header",
+    "open_capture",
+    "read_capture",
+    "read_diligent",
+    "read_exr",
+    "read_exr_channels",
+    "read_exr_parts",
+    "read_hdr",
+    "read_hdr_header",
+    "read_pfm",
+    "read_png",
+    "write_capture",
+    "write_exr",
+    "write_exr_channels",
+    "write_exr_parts",
+    "write_hdr",
+    "write_pfm",
+    "write_png",
+]
