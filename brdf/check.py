@@ -1,6 +1,7 @@
 """Property checks for any reflectance model with the common interface
 ``model(wi, wo) -> f_r`` (see ``brdf._check`` for the details)."""
 
+from ._check import FAST_COMPILE as FAST_COMPILE
 from ._check import directional_albedo as directional_albedo
 from ._check import directional_albedo_mc as directional_albedo_mc
 from ._check import edge_case_pairs as edge_case_pairs

@@ -37,3 +37,40 @@ def edge_directions(dtype=jnp.float64):
     below = jnp.asarray([[0.6, 0.0, -0.8], [0.0, 0.0, -1.0]], dtype)
     up = jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], dtype)
     return jnp.concatenate([wi, below, up]), jnp.concatenate([wo, up, below])
+
+
+def fjit(fun=None, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: the test programs run once on small
+    arrays, so compile time is what the suite pays for."""
+    import functools
+
+    import jax
+
+    import brdf
+
+    if fun is None:
+        return functools.partial(fjit, **kw)
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
+
+
+def _ev(m, a, b):
+    return m(a, b)
+
+
+def _ev_pairs(m, a, b):
+    import jax
+
+    return jax.vmap(m)(a, b)
+
+
+ev = None  # set below (needs jax imported lazily by fjit)
+ev_pairs = None
+
+
+def _init():
+    global ev, ev_pairs
+    ev = fjit(_ev)  # model(wi, wo) on batched directions, compiled once per structure
+    ev_pairs = fjit(_ev_pairs)  # one material (0-d or [C] parameters) over [N, 3] pairs
+
+
+_init()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import brdf
-from tests.brdf._util import edge_directions, sph
+from tests.brdf._util import edge_directions, ev, ev_pairs, fjit, sph
 from tests.helpers import assert_close, assert_finite
 
 
@@ -16,7 +16,7 @@ def test_closed_form(dtype):
     m = brdf.Lambert(albedo)
     wi = sph([0.1, 0.7, 1.5], [0.0, 1.0, 2.0], dtype)
     wo = sph([0.3, 1.2, 0.0], [3.0, 0.5, 0.0], dtype)
-    f = m(wi, wo)
+    f = ev(m, wi, wo)
     assert f.shape == (3, 3) and f.dtype == dtype
     assert_close(f, jnp.broadcast_to(albedo / np.pi, (3, 3)), dtype)
 
@@ -24,11 +24,11 @@ def test_closed_form(dtype):
 def test_zero_below_horizon_and_finite_edges():
     m = brdf.Lambert(jnp.asarray([0.5, 0.6, 0.7]))
     wi, wo = edge_directions()
-    f = jax.vmap(m)(wi, wo)
+    f = ev_pairs(m, wi, wo)
     active = (wi[:, 2] > 0) & (wo[:, 2] > 0)
     assert_close(f[~active], 0.0)
     assert_close(f[active], jnp.broadcast_to(jnp.asarray([0.5, 0.6, 0.7]) / np.pi, f[active].shape))
-    g = jax.grad(lambda a: jnp.sum(jax.vmap(brdf.Lambert(a))(wi, wo)))(jnp.asarray([0.5, 0.6, 0.7]))
+    g = fjit(jax.grad(lambda a: jnp.sum(jax.vmap(brdf.Lambert(a))(wi, wo))))(jnp.asarray([0.5, 0.6, 0.7]))
     assert_finite(g)
 
 

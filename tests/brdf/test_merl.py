@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import brdf
+from tests.brdf._util import ev, ev_pairs, fjit
 from tests.helpers import assert_close
 
 RES_TH, RES_TD, RES_PD = 90, 90, 360  # BRDFRead.cpp constants (phi_d stored over half: 180)
@@ -50,7 +51,7 @@ def test_indexing_matches_reference_code(key):
     # Add exact configurations: normal incidence, wi = wo, mirror pairs.
     wi = jnp.concatenate([wi, jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.6, 0.0, 0.8]])])
     wo = jnp.concatenate([wo, jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [-0.6, 0.0, 0.8]])])
-    ih, idd, ip = (np.asarray(x) for x in jax.jit(brdf.merl_index)(wi, wo))
+    ih, idd, ip = (np.asarray(x) for x in fjit(brdf.merl_index)(wi, wo))
     ref = np.asarray([_ref_index(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(np.asarray(wi), np.asarray(wo))])
     # Directions a rounding error away from a bin edge may fall either side: allow
     # at most 1% of lookups to differ, and by one bin only.
@@ -61,12 +62,11 @@ def test_indexing_matches_reference_code(key):
 
 def test_half_diff_round_trip(key):
     wi, wo = brdf.check.random_pairs(key, 1000)
-    coords = brdf.half_diff_coords(wi, wo)
-    wi2, wo2 = brdf.half_diff_to_directions(*coords)
+    wi2, wo2 = fjit(lambda a, b: brdf.half_diff_to_directions(*brdf.half_diff_coords(a, b)))(wi, wo)
     assert_close(wi2, wi, atol=1e-12)
     assert_close(wo2, wo, atol=1e-12)
     # theta_h of a mirror pair is 0 and theta_d is the angle of incidence.
-    th, _, td, _ = brdf.half_diff_coords(jnp.asarray([0.6, 0.0, 0.8]), jnp.asarray([-0.6, 0.0, 0.8]))
+    th, _, td, _ = fjit(brdf.half_diff_coords)(jnp.asarray([0.6, 0.0, 0.8]), jnp.asarray([-0.6, 0.0, 0.8]))
     assert_close(th, 0.0, atol=1e-15)
     assert_close(td, math.acos(0.8))
 
@@ -98,33 +98,34 @@ def test_tabulated_evaluation(table):
     # At bin centres (any phi_h: the model is isotropic) nearest lookup is exact.
     th, td, pd = brdf.merl_bin_centers()
     i, j, k = np.array([0, 7, 40, 80]), np.array([0, 20, 60, 10]), np.array([0, 90, 179, 33])
-    wi, wo = brdf.half_diff_to_directions(th[i], jnp.asarray([0.0, 1.0, 2.0, -2.5]), td[j], pd[k])
-    assert_close(merl(wi, wo), tab[:, i, j, k].T, rtol=1e-12)
+    wi, wo = fjit(brdf.half_diff_to_directions)(th[i], jnp.asarray([0.0, 1.0, 2.0, -2.5]), td[j], pd[k])
+    assert_close(ev(merl, wi, wo), tab[:, i, j, k].T, rtol=1e-12)
     # Off the grid, away from the horizon, interpolation tracks the smooth model.
     wi, wo = brdf.check.random_pairs(jax.random.PRNGKey(3), 4000)
     keep = (wi[:, 2] > 0.3) & (wo[:, 2] > 0.3)
     wi, wo = wi[keep], wo[keep]
-    ref = jax.vmap(model)(wi, wo)
+    ref = ev_pairs(model, wi, wo)
 
-    @jax.jit
+    @fjit
     def lookups(t, wi, wo):
-        return brdf.MERL(t, "nearest")(wi, wo), brdf.MERL(t, "linear")(wi, wo)
+        # and missing (negative) entries, which read as 0
+        return brdf.MERL(t, "nearest")(wi, wo), brdf.MERL(t, "linear")(wi, wo), brdf.MERL(-t)(wi, wo)
 
-    near, lin = lookups(tab, wi, wo)
+    near, lin, missing = lookups(tab, wi, wo)
     err_near = np.median(np.abs(np.asarray(near / ref - 1)))
     err_lin = np.median(np.abs(np.asarray(lin / ref - 1)))
     assert err_lin < 2e-4 and err_near < 5e-3, (err_lin, err_near)  # bins ~1 degree wide
     assert err_lin < err_near
     # Below the horizon the table gives 0; missing (negative) entries read as 0.
-    below = merl(jnp.asarray([[0.0, 0.6, -0.8]]), jnp.asarray([[0.0, 0.0, 1.0]]))
+    below = ev(merl, jnp.asarray([[0.0, 0.6, -0.8]]), jnp.asarray([[0.0, 0.0, 1.0]]))
     assert_close(below, [[0.0, 0.0, 0.0]])
-    assert float(jnp.min(brdf.MERL(-jnp.ones_like(tab))(wi, wo))) == 0.0
+    assert float(jnp.max(jnp.abs(missing))) == 0.0
 
 
 def test_linear_lookup_gradients_are_finite(table):
     _, tab = table
     wi, wo = brdf.check.edge_case_pairs(jax.random.PRNGKey(4), 512)
-    g = jax.jit(jax.grad(lambda a, b: jnp.sum(brdf.MERL(tab, "linear")(a, b)), argnums=(0, 1)))(wi, wo)
+    g = fjit(jax.grad(lambda a, b: jnp.sum(brdf.MERL(tab, "linear")(a, b)), argnums=(0, 1)))(wi, wo)
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in g)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import brdf
-from tests.brdf._util import edge_directions, sph
+from tests.brdf._util import edge_directions, ev, ev_pairs, fjit, sph
 from tests.helpers import assert_close, assert_finite
 
 MASKINGS = ["smith", "smith_height_correlated", "v_groove"]
@@ -18,7 +18,7 @@ def projected_area(dist, alpha_min):
     panels scaled to the roughness so that the peak is resolved."""
     breaks = tuple(sorted({b for b in (0.3 * alpha_min, alpha_min, 3 * alpha_min, 0.8) if b < np.pi / 2 - 0.05}))
     dirs, w = brdf.check.hemisphere_quadrature(n_theta=96, n_phi=64, breaks=breaks)
-    return jnp.sum(dist.D(dirs)[:, 0] * dirs[:, 2] * w)
+    return fjit(lambda d, x, w: jnp.sum(d.D(x)[:, 0] * x[:, 2] * w))(dist, dirs, w)
 
 
 @pytest.mark.parametrize("alpha", [(0.05, None), (0.3, None), (1.0, None), (0.1, 0.5), (0.7, 0.2)])
@@ -34,7 +34,7 @@ def test_ggx_isotropic_equals_anisotropic_with_equal_alphas(key):
     wi, wo = brdf.check.random_pairs(key, 256)
     a = brdf.Microfacet(brdf.GGX(0.3), brdf.SchlickFresnel(0.04))
     b = brdf.Microfacet(brdf.GGX(0.3, 0.3), brdf.SchlickFresnel(0.04))
-    assert_close(jax.vmap(a)(wi, wo), jax.vmap(b)(wi, wo))
+    assert_close(ev_pairs(a, wi, wo), ev_pairs(b, wi, wo))
 
 
 def test_ggx_normal_incidence_closed_form():
@@ -42,7 +42,7 @@ def test_ggx_normal_incidence_closed_form():
     for alpha in (brdf.ALPHA_MIN, 0.1, 1.0):
         m = brdf.Microfacet(brdf.GGX(alpha), brdf.SchlickFresnel(0.5))
         n = jnp.asarray([[0.0, 0.0, 1.0]])
-        assert_close(m(n, n), [[0.5 / (4 * np.pi * alpha**2)]])
+        assert_close(ev(m, n, n), [[0.5 / (4 * np.pi * alpha**2)]])
 
 
 @pytest.mark.parametrize("masking", MASKINGS)
@@ -107,20 +107,19 @@ def test_finite_values_and_gradients_at_edges(dtype, masking):
         rho=jnp.full((4 * n, 3), 0.5, dtype),
     )
 
-    @jax.jit
     def f(p, a, b):
         m = brdf.Sum(
             brdf.Lambert(p["rho"]), brdf.Microfacet(brdf.GGX(p["alpha"]), brdf.SchlickFresnel(p["f0"]), masking)
         )
         return m(a, b)
 
-    vals = f(params, wi, wo)
+    vals = fjit(f)(params, wi, wo)
     assert vals.dtype == dtype and vals.shape == (4 * n, 3)
     assert_finite(vals)
     assert float(jnp.min(vals)) >= 0
     below = (wi[:, 2] <= 0) | (wo[:, 2] <= 0)
     assert_close(vals[below], 0.0)
-    g = jax.jit(jax.grad(lambda p, a, b: jnp.sum(f(p, a, b)), argnums=(0, 1, 2)))(params, wi, wo)
+    g = fjit(jax.grad(lambda p, a, b: jnp.sum(f(p, a, b)), argnums=(0, 1, 2)))(params, wi, wo)
     assert_finite(g)
 
 
@@ -133,20 +132,20 @@ def test_jit_vmap_eager_agree(key):
     m = brdf.lambert_ggx(rho, jnp.full((p, 1), 0.04), alpha)
     eager = m(wi, wo)
     jitted = jax.jit(lambda m, a, b: m(a, b))(m, wi, wo)
-    mapped = jax.vmap(lambda m, a, b: m(a, b))(m, wi, wo)  # texture and directions mapped together
+    mapped = fjit(jax.vmap(lambda m, a, b: m(a, b)))(m, wi, wo)  # texture and directions mapped together
     assert_close(jitted, eager)
     assert_close(mapped, eager)
     # Directions [P, 3] against 0-d parameters broadcast to the same answer.
     one = brdf.lambert_ggx(0.3, 0.04, 0.5)
-    assert_close(one(wi, wo), jax.vmap(one)(wi, wo))
+    assert_close(ev(one, wi, wo), ev_pairs(one, wi, wo))
 
 
 def test_float32_matches_float64(key):
     wi, wo = brdf.check.random_pairs(key, 512)
     m64 = brdf.Microfacet(brdf.GGX(0.2), brdf.SchlickFresnel(0.04))
     m32 = brdf.Microfacet(brdf.GGX(jnp.float32(0.2)), brdf.SchlickFresnel(jnp.float32(0.04)))
-    f64 = m64(wi, wo)
-    f32 = m32(wi.astype(jnp.float32), wo.astype(jnp.float32))
+    f64 = ev(m64, wi, wo)
+    f32 = ev(m32, wi.astype(jnp.float32), wo.astype(jnp.float32))
     assert f32.dtype == jnp.float32
     assert_close(f32, f64, jnp.float32, rtol=2e-5)  # float32 rounding through ~30 operations
 
@@ -169,7 +168,7 @@ def test_invalid_inputs_raise():
 
 def test_construction_under_jit_does_not_inspect_tracers():
     # Validation happens only on concrete values; traced construction works.
-    @jax.jit
+    @fjit
     def f(alpha):
         return brdf.Microfacet(brdf.GGX(alpha), brdf.SchlickFresnel(0.04))(
             jnp.asarray([[0.0, 0.0, 1.0]]), jnp.asarray([[0.0, 0.0, 1.0]])

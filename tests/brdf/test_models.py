@@ -2,14 +2,13 @@
 its documented lack), white furnace (or where the classic forms fail it), closed
 forms and limits."""
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import brdf
-from tests.brdf._util import from_cos, sph
+from tests.brdf._util import ev, ev_pairs, fjit, from_cos, sph
 from tests.helpers import assert_close
 
 NORMAL = jnp.asarray([0.0, 0.0, 1.0])
@@ -34,7 +33,7 @@ MODELS = {
 }
 
 
-@eqx.filter_jit
+@fjit
 def _both_ways(model, wi, wo):
     f = jax.vmap(model)
     return f(wi, wo), f(wo, wi)
@@ -96,26 +95,26 @@ def test_ward_normalisations():
     assert float(a[0, 0]) > 1.5, float(a[0, 0])
     # Both agree at the specular peak at normal incidence: rho_s / (4 pi ax ay).
     for m in (gm, brdf.Ward(0.0, 1.0, 0.2, 0.05, normalization="ward")):
-        assert_close(m(NORMAL, NORMAL), [1 / (4 * np.pi * 0.2 * 0.05)])
+        assert_close(ev(m, NORMAL, NORMAL), [1 / (4 * np.pi * 0.2 * 0.05)])
 
 
 def test_oren_nayar_limits_and_closed_form():
     wi = sph([0.3, 1.0, 1.4], [0.0, 2.0, 4.0])
     wo = sph([1.2, 0.2, 0.7], [0.5, 1.0, 3.0])
-    lam = jax.vmap(brdf.Lambert(0.7))(wi, wo)
+    lam = ev_pairs(brdf.Lambert(0.7), wi, wo)
     for variant in ("qualitative", "full"):
-        assert_close(jax.vmap(brdf.OrenNayar(0.7, 0.0, variant))(wi, wo), lam)  # sigma = 0 is Lambert
+        assert_close(ev_pairs(brdf.OrenNayar(0.7, 0.0, variant), wi, wo), lam)  # sigma = 0 is Lambert
     # Qualitative model at theta_i = 60, theta_o = 30 degrees in the plane of incidence
     # (phi_i = phi_o): a = 60, b = 30 degrees, cos(dphi) = 1.
     s2 = 0.25
     A = 1 - 0.5 * s2 / (s2 + 0.33)
     B = 0.45 * s2 / (s2 + 0.09)
     ref = 0.7 / np.pi * (A + B * np.sin(np.pi / 3) * np.tan(np.pi / 6))
-    f = brdf.OrenNayar(0.7, 0.5)(sph(np.pi / 3, 0.0), sph(np.pi / 6, 0.0))
+    f = ev(brdf.OrenNayar(0.7, 0.5), sph(np.pi / 3, 0.0), sph(np.pi / 6, 0.0))
     assert_close(f, [ref])
     # Backscatter (retro-reflection) is brighter than forward scatter for rough surfaces.
     on = brdf.OrenNayar(0.7, 0.5, "full")
-    assert float(on(sph(1.0, 0.0), sph(1.0, 0.0))[0]) > float(on(sph(1.0, 0.0), sph(1.0, np.pi))[0])
+    assert float(ev(on, sph(1.0, 0.0), sph(1.0, 0.0))[0]) > float(ev(on, sph(1.0, 0.0), sph(1.0, np.pi))[0])
 
 
 def test_diffuse_energy():
@@ -135,12 +134,12 @@ def test_diffuse_energy():
 
 def test_burley_closed_form():
     # At normal incidence on both sides both Schlick weights are 1: f = base/pi.
-    assert_close(brdf.BurleyDiffuse(0.6, 0.8)(NORMAL, NORMAL), [0.6 / np.pi])
+    assert_close(ev(brdf.BurleyDiffuse(0.6, 0.8), NORMAL, NORMAL), [0.6 / np.pi])
     # Both at 60 degrees, mirror configuration: cos_d = cos 60, F_D90 = 0.5 + 2 r cos_d^2.
     r = 0.8
     fd90 = 0.5 + 2 * r * 0.25
     wt = 1 + (fd90 - 1) * 0.5**5
-    assert_close(brdf.BurleyDiffuse(0.6, r)(sph(np.pi / 3, 0.0), sph(np.pi / 3, np.pi)), [0.6 / np.pi * wt * wt])
+    assert_close(ev(brdf.BurleyDiffuse(0.6, r), sph(np.pi / 3, 0.0), sph(np.pi / 3, np.pi)), [0.6 / np.pi * wt * wt])
 
 
 def test_invalid_arguments_raise():

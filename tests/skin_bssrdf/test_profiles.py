@@ -77,10 +77,8 @@ def test_jit_vmap_eager_agree(name):
     p = make(name, jnp.array([0.3, 0.8, 0.95]))
     r = jnp.linspace(0.0, 4.0, 9)
     eager = p.radial(r)
-    jitted = jax.jit(lambda q, r: q.radial(r))(p, r)
-    mapped = jax.vmap(p.radial)(r)
-    assert_close(jitted, eager)
-    assert_close(mapped, eager)
+    both = jax.jit(jax.vmap(lambda q, r: q.radial(r), in_axes=(None, 0)))(p, r)  # jit of vmap
+    assert_close(both, eager)
 
 
 # --- model-specific ---------------------------------------------------------------
@@ -229,17 +227,17 @@ def test_energy_radius():
 def test_single_scattering_white_furnace_and_reciprocity(key):
     # eta = 1, isotropic, no absorption: directional albedo = (1 - mu ln(1 + 1/mu))/2 (closed form)
     d = sb.Dipole(0.0, 1.0, 1.0, 0.0)
-    x, wq = np.polynomial.legendre.leggauss(48)
+    x, wq = np.polynomial.legendre.leggauss(32)
     mu, wmu = 0.5 * (x + 1), 0.5 * wq
-    phi = np.linspace(0, 2 * np.pi, 33)[:-1]
+    phi = np.linspace(0, 2 * np.pi, 9)[:-1]  # isotropic, eta = 1: the integrand does not depend on phi
     M, PH = np.meshgrid(mu, phi, indexing="ij")
     s = np.sqrt(1 - M**2)
     wo = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1)
     for mi in (1.0, 0.3):
         wi = np.broadcast_to([np.sqrt(1 - mi**2), 0, mi], wo.shape)
         f = np.asarray(d.single_scattering(jnp.asarray(wi), jnp.asarray(wo)))[..., 0]
-        albedo = np.sum(f * M * wmu[:, None]) * 2 * np.pi / 32
-        assert_close(albedo, 0.5 * (1 - mi * np.log(1 + 1 / mi)), rtol=1e-8)
+        albedo = np.sum(f * M * wmu[:, None]) * 2 * np.pi / 8
+        assert_close(albedo, 0.5 * (1 - mi * np.log(1 + 1 / mi)), rtol=1e-8)  # 32-point Gauss-Legendre
     # reciprocity with Fresnel, anisotropy and absorption
     d = sb.Dipole(jnp.array([0.1, 0.5]), 1.0, 1.4, 0.8)
     k1, k2 = jax.random.split(key)
