@@ -41,10 +41,11 @@ def dot(a: Float[Array, "*batch 3"], b: Float[Array, "*batch 3"]) -> Float[Array
     return a[..., 0:1] * b[..., 0:1] + a[..., 1:2] * b[..., 1:2] + a[..., 2:3] * b[..., 2:3]
 
 
-def safe_normalize(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+def safe_normalize(v: Float[Array, "*batch d"]) -> Float[Array, "*batch d"]:
     """v / |v| along the last axis; the zero vector (finite gradient) where |v| ~ 0."""
     v = jnp.asarray(v)
-    sq = dot(v, v)
+    # 3-vectors (directions) avoid the reduction, see dot(); other lengths sum
+    sq = dot(v, v) if v.shape[-1] == 3 else jnp.sum(v * v, axis=-1, keepdims=True)
     ok = sq > _TINY_SQ
     inv = jnp.where(ok, 1 / jnp.sqrt(jnp.where(ok, sq, 1)), 0)
     return v * inv

@@ -1,7 +1,12 @@
-"""Direction helpers shared by the brdf tests."""
+"""Direction helpers shared by the brdf tests, and a cheaply compiled jit."""
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
+
+import brdf
 
 
 def sph(theta, phi, dtype=jnp.float64):
@@ -39,38 +44,22 @@ def edge_directions(dtype=jnp.float64):
     return jnp.concatenate([wi, below, up]), jnp.concatenate([wo, up, below])
 
 
+
 def fjit(fun=None, **kw):
     """jax.jit with brdf.check.FAST_COMPILE: the test programs run once on small
     arrays, so compile time is what the suite pays for."""
-    import functools
-
-    import jax
-
-    import brdf
-
     if fun is None:
         return functools.partial(fjit, **kw)
     return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
-def _ev(m, a, b):
-    return m(a, b)
+@fjit
+def ev(m, wi, wo):
+    """model(wi, wo) on batched directions, compiled once per model structure."""
+    return m(wi, wo)
 
 
-def _ev_pairs(m, a, b):
-    import jax
-
-    return jax.vmap(m)(a, b)
-
-
-ev = None  # set below (needs jax imported lazily by fjit)
-ev_pairs = None
-
-
-def _init():
-    global ev, ev_pairs
-    ev = fjit(_ev)  # model(wi, wo) on batched directions, compiled once per structure
-    ev_pairs = fjit(_ev_pairs)  # one material (0-d or [C] parameters) over [N, 3] pairs
-
-
-_init()
+@fjit
+def ev_pairs(m, wi, wo):
+    """One material (0-d or [C] parameters) over [N, 3] pairs."""
+    return jax.vmap(m)(wi, wo)
