@@ -28,6 +28,8 @@ from jaxtyping import Array, Float, Int
 import brdf
 import stage
 
+from ._maps import MaterialMaps, material_maps
+
 # The fitter's roughness prior, separate from the model's own floor: below
 # this a GGX lobe is narrower than any light stage's angular light spacing can
 # resolve (about 0.1 rad on Light Stage X), so the data cannot tell values apart.
@@ -52,6 +54,10 @@ class Fit(eqx.Module):
     def material(self) -> brdf.AbstractBRDF:
         """The fitted BRDF (parameters with a leading sample axis)."""
         return brdf.lambert_ggx(self.rho_d, self.f0, self.alpha)
+
+    def maps(self, surface: stage.Surface) -> MaterialMaps:
+        """The fit as material maps over ``surface`` (its shading frame, GGX rung)."""
+        return material_maps(surface, self.rho_d, self.f0, self.alpha)
 
     @property
     def failed(self):

@@ -1,0 +1,168 @@
+"""Per-sample material maps: what a fit produces and what rendering, the
+texture-set writer and the CLI consume.
+
+One type for every rung of the model ladder (``MODELS``), so that a map set
+can mix models per sample (``model`` map) and still be evaluated with one
+vectorised BRDF (:class:`LadderBRDF`).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
+
+import brdf
+import stage
+from brdf import safe_normalize, safe_pow
+
+# The model ladder, simplest first; each rung adds to the one before it.
+MODELS = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "subsurface")
+LAMBERT, BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE = range(len(MODELS))
+
+
+def phong_exponent(alpha: ArrayLike) -> Array:
+    """Blinn-Phong exponent with the same lobe width as a microfacet roughness
+    alpha: s = 2 / alpha^2 - 2 (Walter et al. 2007, sec. 5.2, the Beckmann-Phong
+    correspondence)."""
+    alpha = jnp.asarray(alpha)
+    return jnp.maximum(2.0 / (alpha * alpha) - 2.0, 0.0)
+
+
+class LadderBRDF(brdf.AbstractBRDF):
+    """The BRDF of a material-map set in each sample's local frame:
+
+        f_r = rho_d / pi * [model < SUBSURFACE]
+              + rho_s (s + 8) / (8 pi) cos(theta_h)^s           (model = BLINN_PHONG, s = phong_exponent(alpha_x))
+              + D_GGX(alpha_x, alpha_y) F_Schlick(rho_s) G / (4 cos_i cos_o)  (model >= GGX)
+
+    For ``SUBSURFACE`` samples the diffuse term is left out: that light leaves
+    through the diffusion profile (see :meth:`MaterialMaps.profile`). Set
+    ``include_diffuse=True`` to keep it as a local Lambert term instead (the
+    zero-mean-free-path limit)."""
+
+    rho_d: Float[Array, "*batch 3"]
+    rho_s: Float[Array, "*batch 1"]
+    alpha: Float[Array, "*batch 2"]
+    model: Int[Array, "*batch 1"]
+    include_diffuse: bool = eqx.field(static=True, default=False)
+
+    def __call__(self, wi, wo):
+        """f_r in 1/sr, shape [..., 3]; 0 below the horizon."""
+        active = (wi[..., 2:3] > 0) & (wo[..., 2:3] > 0)
+        model = self.model
+        diffuse_on = (model < SUBSURFACE) | self.include_diffuse
+        diffuse = jnp.where(diffuse_on, self.rho_d / jnp.pi, 0.0)
+        ax, ay = self.alpha[..., 0:1], self.alpha[..., 1:2]
+        ay = jnp.where(model >= GGX_ANISO, ay, ax)
+        ggx = brdf.Microfacet(brdf.GGX(ax, ay), brdf.SchlickFresnel(self.rho_s), "smith")(wi, wo)
+        s = phong_exponent(ax)
+        cos_h = safe_normalize(wi + wo)[..., 2:3]
+        phong = self.rho_s * (s + 8.0) / (8.0 * jnp.pi) * safe_pow(jnp.maximum(cos_h, 0.0), s)
+        spec = jnp.where(model >= GGX, ggx, jnp.where(model == BLINN_PHONG, phong, 0.0))
+        return jnp.where(active, diffuse + spec, 0.0)
+
+    def fittable(self) -> dict[str, brdf.ParamSpec]:
+        """None: a map set is fitted by :func:`relight.fit`, rung by rung."""
+        return {}
+
+
+class MaterialMaps(eqx.Module):
+    """Reflectance maps over P surface samples (texels or pixels).
+
+    rho_d [P, 3]: diffuse albedo (for ``SUBSURFACE`` samples the total diffuse
+    reflectance of the profile). rho_s [P, 1]: specular albedo (Schlick F0 for
+    the GGX rungs, the lobe's albedo for Blinn-Phong). alpha [P, 2]: GGX
+    roughness along the tangent and bitangent (equal unless anisotropic).
+    normal, tangent [P, 3]: the fitted shading frame in world space (unit,
+    orthogonal). mfp [P, 3]: diffuse mean free path in mm (Christensen & Burley
+    2015's ``dmfp``; used where model = SUBSURFACE). model [P]: ladder rung
+    (index into ``MODELS``)."""
+
+    rho_d: Float[Array, "sample 3"]
+    rho_s: Float[Array, "sample 1"]
+    alpha: Float[Array, "sample 2"]
+    normal: Float[Array, "sample 3"]
+    tangent: Float[Array, "sample 3"]
+    mfp: Float[Array, "sample 3"]
+    model: Int[Array, " sample"]
+
+    @property
+    def num_samples(self) -> int:
+        return self.rho_d.shape[0]
+
+    def brdf(self, include_diffuse: bool = False) -> LadderBRDF:
+        """The per-sample BRDF (leading sample axis) in the frame of :meth:`frame`."""
+        return LadderBRDF(self.rho_d, self.rho_s, self.alpha, self.model[:, None], include_diffuse)
+
+    def frame(self, surface: stage.Surface) -> stage.Surface:
+        """``surface`` with its shading frame replaced by the maps' (t, b = n x t, n)."""
+        n = safe_normalize(jnp.asarray(self.normal, surface.normal.dtype))
+        t = jnp.asarray(self.tangent, n.dtype)
+        t = safe_normalize(t - jnp.sum(t * n, -1, keepdims=True) * n)
+        b = jnp.cross(n, t)
+        return eqx.tree_at(lambda s: (s.normal, s.tangent, s.bitangent), surface, (n, t, b))
+
+    def profile(self):
+        """Christensen & Burley 2015 diffusion profile per sample (albedo rho_d,
+        diffuse mean free path mfp; parameters [P, 3]), for the diffusion operator."""
+        import skin_bssrdf
+
+        mfp = jnp.maximum(jnp.asarray(self.mfp), 1e-3)
+        return skin_bssrdf.Burley.from_mean_free_path(jnp.clip(self.rho_d, 0.0, 1.0), mfp, config="dmfp")
+
+    @property
+    def has_subsurface(self) -> bool:
+        return bool(np.any(np.asarray(self.model) == SUBSURFACE))
+
+
+def material_maps(surface: stage.Surface, rho_d, rho_s=None, alpha=None, *, normal=None, tangent=None, mfp=None,
+                  model=None) -> MaterialMaps:
+    """Build and validate a :class:`MaterialMaps` over ``surface``'s samples.
+
+    Omitted maps default to: no specular (rho_s = 0), alpha = 0.3, the
+    surface's own normal and tangent, mfp = 0, and model = GGX if rho_s is given
+    (GGX_ANISO if alpha has two distinct columns), LAMBERT otherwise. alpha may
+    be [P] / [P, 1] (isotropic) or [P, 2]."""
+    P = surface.num_samples
+    f = lambda x, c, name: _per_sample(x, P, c, name)  # noqa: E731
+    rho_d = f(rho_d, 3, "rho_d")
+    rho_s = f(0.0 if rho_s is None else rho_s, 1, "rho_s")
+    a = np.asarray(0.3 if alpha is None else alpha, np.float64)
+    if a.ndim == 2 and a.shape[-1] == 2:
+        alpha2 = f(a, 2, "alpha")
+    else:
+        alpha2 = np.repeat(f(a, 1, "alpha"), 2, axis=1)
+    if np.any(alpha2 <= 0):
+        raise ValueError("material_maps: alpha (roughness) must be > 0")
+    if np.any(rho_d < 0) or np.any(rho_s < 0):
+        raise ValueError("material_maps: rho_d and rho_s must be >= 0")
+    normal = f(surface.normal if normal is None else normal, 3, "normal")
+    tangent = f(surface.tangent if tangent is None else tangent, 3, "tangent")
+    mfp = f(0.0 if mfp is None else mfp, 3, "mfp")
+    if np.any(mfp < 0):
+        raise ValueError("material_maps: mfp (mean free path) must be >= 0")
+    if model is None:
+        aniso = np.any(np.abs(alpha2[:, 0] - alpha2[:, 1]) > 1e-6 * alpha2[:, 0])
+        default = LAMBERT if rho_s is None or not np.any(rho_s > 0) else (GGX_ANISO if aniso else GGX)
+        model = np.full(P, default, np.int32)
+    model = np.broadcast_to(np.asarray(model, np.int32), (P,))
+    if np.any((model < 0) | (model >= len(MODELS))):
+        raise ValueError(f"material_maps: model indices must be in 0..{len(MODELS) - 1} ({', '.join(MODELS)})")
+    dt = jnp.asarray(surface.position).dtype
+    j = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    return MaterialMaps(j(rho_d), j(rho_s), j(alpha2), j(normal), j(tangent), j(mfp), jnp.asarray(model))
+
+
+def _per_sample(x, P, c, name):
+    x = np.asarray(x, np.float64)
+    if x.ndim == 1 and c == 1 and x.shape[0] == P:
+        x = x[:, None]
+    try:
+        out = np.broadcast_to(x, (P, c)).copy()
+    except ValueError:
+        raise ValueError(f"material_maps: {name} must broadcast to [{P}, {c}], got shape {x.shape}") from None
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"material_maps: {name} has NaN or Inf")
+    return out
