@@ -90,7 +90,8 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
     env = load_envmap(envmap)
     weights = light_weights(env, rig.directions, rig.center_irradiance)
     relit_ibr = np.asarray(relight_olat(capture.radiance, weights))[0]
-    refit = stage.simulate(surface, rig, [camera], fitted.material(), light_vis, cam_vis)
+    maps = fitted.maps(surface)
+    refit = stage.simulate(maps.frame(surface), rig, [camera], maps.brdf(include_diffuse=True), light_vis, cam_vis)
     relit_fit = np.asarray(relight_olat(refit.radiance, weights))[0]
     times["relight_s"] = time.perf_counter() - t0
 
@@ -98,7 +99,7 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
     lit = np.asarray(fitted.observed) >= 8
     rel = lambda est, ref: np.abs(np.asarray(est) - np.asarray(ref)) / np.asarray(ref)  # noqa: E731
     err_rho = rel(fitted.rho_d, rho_true)[lit]
-    err_alpha = rel(fitted.alpha, alpha_true)[lit]
+    err_alpha = rel(fitted.alpha[:, :1], alpha_true)[lit]
     mse = float(np.mean((relit_fit - relit_ibr) ** 2))
     peak = float(np.max(relit_ibr))
     report = {
@@ -120,7 +121,7 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
     valid = np.zeros(surface.resolution, bool)
     valid.reshape(-1)[np.asarray(surface.texel_index)] = True
     tex = lambda x: surface.to_texture(np.asarray(x, np.float32))  # noqa: E731
-    maps = {"albedo": tex(fitted.rho_d), "specular": tex(fitted.f0), "roughness": tex(fitted.alpha),
+    maps = {"albedo": tex(fitted.rho_d), "specular": tex(fitted.f0), "roughness": tex(fitted.alpha[:, :1]),
             "relit_image_based": tex(relit_ibr), "relit_from_fit": tex(relit_fit)}
     for name, m in maps.items():
         write_exr(out / f"{name}.exr", m)

@@ -1,8 +1,10 @@
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import brdf
+import relight
 import stage
 from relight import fit
 
@@ -40,7 +42,7 @@ def test_noise_free_recovery(scene):
     assert not np.any(np.asarray(f.failed))
     # The model is the simulator's: recovery is limited by float32 and the solver tolerance.
     np.testing.assert_allclose(np.asarray(f.rho_d), np.asarray(rho), rtol=2e-3)
-    np.testing.assert_allclose(np.asarray(f.alpha), np.asarray(alpha), rtol=1e-2)
+    np.testing.assert_allclose(np.asarray(f.alpha[:, :1]), np.asarray(alpha), rtol=1e-2)
     np.testing.assert_allclose(np.asarray(f.f0), np.asarray(f0), rtol=2e-2)
     assert float(np.max(np.asarray(f.residual))) < 1e-4
 
@@ -53,7 +55,7 @@ def test_one_percent_noise(scene):
     cap = stage.Capture(cap.radiance * jnp.asarray(noise, jnp.float32), cap.mask, cap.rig, cap.cameras)
     f = fit(cap, surface)
     err_rho = np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho)
-    err_alpha = np.abs(np.asarray(f.alpha) - np.asarray(alpha)) / np.asarray(alpha)
+    err_alpha = np.abs(np.asarray(f.alpha[:, :1]) - np.asarray(alpha)) / np.asarray(alpha)
     # ~60 lit lights x 1% noise: the albedo is averaged down well below 1%; roughness is
     # set by the few lights inside the lobe, so it is noisier (issue 7 sets < 5% on Light Stage X).
     assert np.median(err_rho) < 0.01
@@ -82,3 +84,129 @@ def test_mismatched_capture_is_refused(scene):
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
     with pytest.raises(ValueError, match="samples"):
         fit(cap, surface.subset(np.arange(3)))
+
+
+def _noisy(cap, sigma, seed):
+    noise = 1 + sigma * np.random.default_rng(seed).standard_normal(cap.radiance.shape)
+    return stage.Capture(cap.radiance * jnp.asarray(noise, jnp.float32), cap.mask, cap.rig, cap.cameras)
+
+
+def _tilted(surface, deg, seed):
+    """The surface with its shading normals tilted by ``deg`` in random azimuths
+    (the truth for a normal fit; the fit starts from the untilted frame)."""
+    rng = np.random.default_rng(seed)
+    phi = rng.uniform(0, 2 * np.pi, surface.num_samples)
+    th = np.deg2rad(deg)
+    local = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.full_like(phi, np.cos(th))], 1)
+    T, B, N = (np.asarray(x) for x in (surface.tangent, surface.bitangent, surface.normal))
+    n = local[:, :1] * T + local[:, 1:2] * B + local[:, 2:3] * N
+    maps = relight.material_maps(surface, 0.5, normal=n)
+    return maps.frame(surface)
+
+
+def test_normals_recovered_from_a_tilted_start(scene):
+    surface, rig, cam, lv, cv = scene
+    truth_surface = _tilted(surface, 8.0, seed=4)
+    rho, f0, alpha = _truth(surface.num_samples, seed=5)
+    cap = stage.simulate(truth_surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
+    f = fit(cap, surface, normals=True)
+    cos = np.sum(np.asarray(f.normal) * np.asarray(truth_surface.normal), 1)
+    err_deg = np.rad2deg(np.arccos(np.clip(cos, -1, 1)))
+    # Noise-free, the model is the simulator's: the normal is exact up to the
+    # solver tolerance (issue 7's bar with 1% noise is 0.5 degree).
+    assert np.median(err_deg) < 0.05 and np.max(err_deg) < 0.5
+    np.testing.assert_allclose(np.asarray(f.alpha[:, :1]), np.asarray(alpha), rtol=2e-2)
+    # The uncertainty of a noise-free fit is (near) zero; of every fitted parameter, finite.
+    assert np.all(np.isfinite(np.asarray(f.uncertainty)))
+
+
+def test_cauchy_loss_ignores_unmasked_shadows(scene):
+    surface, rig, cam, lv, cv = scene
+    rho, f0, alpha = _truth(surface.num_samples, seed=6)
+    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
+    # 15% of the valid observations blacked out but left in the mask (cast shadows the mask missed).
+    rng = np.random.default_rng(7)
+    rad = np.asarray(cap.radiance).copy()
+    mask = np.asarray(cap.mask)
+    hit = mask & (rng.uniform(size=mask.shape) < 0.15)
+    rad[hit] = 0.0
+    bad = stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
+    err = {}
+    for loss in ("l2", "cauchy"):
+        f = fit(bad, surface, loss=loss)
+        err[loss] = np.median(np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho))
+    # Plain L2 is dragged by the ~15% zeros (albedo biased low by ~that); Cauchy
+    # weights them out (the issue's measurement: 15% vs 0.8%).
+    assert err["l2"] > 0.05
+    assert err["cauchy"] < 0.02
+
+
+def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
+    surface, rig, cam, lv, cv = scene
+    P = surface.num_samples
+    rho, f0, alpha = _truth(P, seed=8)
+    # Half the samples are pure Lambertian (no lobe, not even Schlick's grazing
+    # term), half Lambert + GGX.
+    lam = np.arange(P) % 2 == 0
+    truth = relight.material_maps(surface, rho, f0 * 4, alpha, model=np.where(lam, 0, 2)).brdf(include_diffuse=True)
+    cap = _noisy(stage.simulate(surface, rig, [cam], truth, lv, cv), 0.01, 9)
+    f = fit(cap, surface, model="auto")
+    model = np.asarray(f.model)
+    # Lambertian samples: the Lambert rung (held-out error within noise of any richer rung).
+    assert np.mean(model[lam] == relight.MODELS.index("lambert")) > 0.8
+    # Glossy samples need a lobe: never Lambert; mostly the isotropic GGX the data came from.
+    assert np.all(model[~lam] != 0)
+    assert np.mean(model[~lam] >= relight.MODELS.index("ggx")) > 0.6
+    assert np.all(np.asarray(f.heldout) > 0) and np.all(np.isfinite(np.asarray(f.heldout)))
+
+
+@pytest.mark.parametrize("solver", ["gn", "dogleg", "bfgs"])
+def test_every_solver_is_safe(scene, solver):
+    surface, rig, cam, lv, cv = scene
+    rho, f0, alpha = _truth(surface.num_samples, seed=10)
+    cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 11)
+    f = fit(cap, surface, solver=solver, rounds=2)
+    for leaf in jax.tree_util.tree_leaves(f):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    # Whatever the solver, a sample either succeeds or keeps a safe start: the
+    # albedo (closed-form in the start) is never far off.
+    assert np.median(np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho)) < 0.05
+
+
+def test_rig_roughness_floor():
+    # Light Stage X: lights ~10.7 degrees apart -> a GGX lobe narrower than ~0.07 is not resolved.
+    floor = relight.rig_alpha_floor(stage.light_stage_x())
+    assert 0.05 < floor < 0.09
+    dense = relight.rig_alpha_floor(stage.fibonacci_sphere(4000))
+    assert dense == relight.ALPHA_FIT_MIN or dense < floor / 3
+
+
+def test_sharp_lobe_is_reported_unresolved(scene):
+    surface, rig, cam, lv, cv = scene
+    rho, f0, _ = _truth(surface.num_samples, seed=12)
+    alpha = jnp.full((surface.num_samples, 1), 0.02)  # mirror-like, far below the dome's ~17 degree spacing
+    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0 * 5, alpha), lv, cv)
+    f = fit(cap, surface)
+    assert f.alpha_floor > 0.1
+    assert np.all(np.asarray(f.alpha) >= f.alpha_floor * 0.999)
+    # Where a light falls near the mirror direction the lobe is seen and pinned at
+    # the floor (flagged); where none does, the lobe is unobserved and its
+    # roughness is whatever fits the diffuse lights (not flagged, but never below the floor).
+    flagged = np.asarray(f.unresolved)
+    assert np.mean(flagged) > 0.6
+    assert np.all(np.asarray(f.alpha)[flagged, 0] < 1.25 * f.alpha_floor)
+
+
+def test_uncertainty_matches_the_scatter_over_noise_draws(scene):
+    surface, rig, cam, lv, cv = scene
+    n = 12
+    sub = surface.subset(np.arange(n))
+    rho, f0, alpha = (x[:n] for x in _truth(surface.num_samples, seed=13))
+    clean = stage.simulate(sub, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[:n], cv[:, :n])
+    draws = [fit(_noisy(clean, 0.02, 100 + k), sub, loss="l2") for k in range(6)]
+    est = np.stack([np.asarray(d.rho_d) for d in draws])
+    scatter = est.std(axis=0, ddof=1).mean()
+    sigma = np.mean([np.asarray(d.uncertainty)[:, :3].mean() for d in draws])
+    # J^T J's one-sigma agrees with the empirical spread of 6 draws to within the
+    # sampling error of a 6-draw standard deviation (~30%) and model nonlinearity.
+    assert 0.5 < sigma / scatter < 2.0
