@@ -27,6 +27,11 @@ from ._io_pfm import read_pfm as read_pfm
 from ._io_pfm import write_pfm as write_pfm
 from ._io_png import read_png as read_png
 from ._io_png import write_png as write_png
+from ._mitsuba_export import write_mitsuba_scene as write_mitsuba_scene
+from ._texture_set import TextureSet as TextureSet
+from ._texture_set import is_map_set as is_map_set
+from ._texture_set import read_maps as read_maps
+from ._texture_set import write_maps as write_maps
 
 __all__ = [
     "CaptureData",
@@ -34,8 +39,10 @@ __all__ = [
     "DiligentData",
     "ExrPart",
     "ImageFormatError",
+    "TextureSet",
     "check_radiance",
     "exr_header",
+    "is_map_set",
     "open_capture",
     "read_capture",
     "read_diligent",
@@ -43,6 +50,7 @@ __all__ = [
     "read_exr_channels",
     "read_exr_parts",
     "read_hdr",
+    "read_maps",
     "read_hdr_header",
     "read_pfm",
     "read_png",
@@ -51,6 +59,8 @@ __all__ = [
     "write_exr_channels",
     "write_exr_parts",
     "write_hdr",
+    "write_maps",
+    "write_mitsuba_scene",
     "write_pfm",
     "write_png",
 ]
