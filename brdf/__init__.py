@@ -38,6 +38,7 @@ from ._microfacet import lambert_ggx as lambert_ggx
 from ._phong import BlinnPhong as BlinnPhong
 from ._phong import ModifiedPhong as ModifiedPhong
 from ._phong import Phong as Phong
+from ._poulin_fournier import PoulinFournier as PoulinFournier
 from ._safe import dot as dot
 from ._safe import safe_acos as safe_acos
 from ._safe import safe_atan2 as safe_atan2

@@ -4,7 +4,10 @@ flush it to disk, then ``os.replace`` it over the target.
 Why the same folder: ``os.replace`` is atomic only within one file system, and
 a temporary file next to the target is on the same one. A crash (or an
 exception in the encoder) therefore leaves either the old file or the new one,
-never a half-written image; the temporary file is removed on failure.
+never a half-written image; the temporary file is removed on failure (a
+process killed outright leaves it behind, as ``.<name>.*.tmp<suffix>``, but the
+target is intact). The final file gets the permissions a plain ``open(path, "w")``
+would give it: those of the file it replaces, or 0o666 less the umask.
 """
 
 from __future__ import annotations
@@ -16,6 +19,30 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 __all__: list[str] = []  # private helpers; the public writers live in relight.io
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the OS allows
+    (/proc/self/status on Linux), else by setting it and restoring it at once."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _final_mode(path: Path) -> int:
+    """The permission bits ``open(path, "w")`` would leave: those of the file it
+    replaces, or 0o666 less the umask for a new file. ``mkstemp`` creates the
+    temporary file with 0o600 whatever the umask, so without this every file
+    written here would be private to its owner."""
+    try:
+        return os.stat(path).st_mode & 0o7777
+    except FileNotFoundError:
+        return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager
@@ -38,6 +65,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # The mode is set after the caller has written: an encoder that writes
+        # by name may have recreated the temporary file.
+        os.chmod(tmp_path, _final_mode(path))
         # Flush the bytes before the rename so a power cut cannot expose an
         # empty file under the final name.
         with open(tmp_path, "rb+") as fh:

@@ -5,7 +5,9 @@ Speed (default): evaluates ``Microfacet(GGX(alpha), ConductorFresnel(eta, k))`` 
 4M random direction pairs (float32) with the public API under ``jax.jit``, and
 Mitsuba 3's ``roughconductor`` (distribution ggx, same parameters) on the same
 pairs with its vectorised ``llvm_ad_rgb`` variant, alternating runs in one
-process. Prints evaluations per second for both and their ratio (ours / Mitsuba),
+process. Also the same model as one single-channel model per colour channel
+on structure-of-arrays [3, N] inputs (the layout Mitsuba is given; see
+``soa_variant``). Prints evaluations per second for all and the ratios (ours / Mitsuba),
 the number of XLA fusions in our compiled kernel, and the largest relative
 difference between the two results.
 
@@ -84,6 +86,27 @@ def ours_variants(alpha: float, n: int):
     )
     out["jax (vmap over [3, N] layout)"] = lambda wi, wo: jax.vmap(single, in_axes=(1, 1), out_axes=1)(wi.T, wo.T).T
     return out
+
+
+SOA_NAME = "jax (one model per channel, [3, N] SoA in)"
+
+
+def soa_variant(alpha: float):
+    """The same model on structure-of-arrays inputs [3, N] -> [3, N], given in that
+    layout (as Mitsuba's are: the transposes are outside the timing for both), with
+    one single-channel model per colour channel, each vmapped over the minor axis.
+    Every intermediate is then a contiguous [N] row of the same shape: no [N, 1]
+    against [N, 3] broadcast, which is what kept XLA from fusing the divides and
+    square roots (docs/brdf.md, Speed). XLA CSEs the shared D and G terms."""
+    models = [
+        brdf.Microfacet(brdf.GGX(jnp.float32(alpha)), brdf.ConductorFresnel(jnp.float32(e), jnp.float32(k)), "smith")
+        for e, k in zip(ETA, K)
+    ]
+
+    def soa(wi_t, wo_t):
+        return jnp.concatenate([jax.vmap(m, in_axes=(1, 1), out_axes=1)(wi_t, wo_t) for m in models], 0)
+
+    return soa
 
 
 # The same model as a hand-written C++ loop behind an XLA FFI custom call: an
@@ -248,6 +271,14 @@ def bench(args) -> int:
         print(f"  {name}: {fusion_count(compiled)} fusions, compiled in {compile_s:.1f} s")
         if args.hlo:
             print(compiled.as_text())
+    # structure-of-arrays inputs, prepared outside the timing as Mitsuba's are
+    wi_t, wo_t = jnp.asarray(np.ascontiguousarray(wi_np.T)), jnp.asarray(np.ascontiguousarray(wo_np.T))
+    compiled = jax.jit(soa_variant(args.alpha)).lower(wi_t, wo_t).compile()
+    results[SOA_NAME] = np.asarray(compiled(wi_t, wo_t)).T
+    timers[SOA_NAME] = lambda c=compiled: jax.block_until_ready(c(wi_t, wo_t))
+    print(f"  {SOA_NAME}: {fusion_count(compiled)} fusions")
+    if args.hlo:
+        print(compiled.as_text())
     if not args.no_ffi:
         call, why = ffi_variant(args.alpha)
         name = "C++ loop via jax.ffi (experiment)"

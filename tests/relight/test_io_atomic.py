@@ -1,0 +1,101 @@
+"""Atomic writes (relight._io_atomic): a failure or a crash mid-write leaves the
+old file intact and no partial file under the target name; the new file's
+permissions are those of a plain open(): 0o666 less the umask, or the mode of
+the file it replaces."""
+
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from relight._io_atomic import _umask, atomic_path, atomic_write_bytes
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def umask():
+    """Set the process umask for one test and restore it afterwards."""
+    old = os.umask(0o022)
+    os.umask(old)
+
+    def set_(mask):
+        os.umask(mask)
+
+    yield set_
+    os.umask(old)
+
+
+def _mode(path):
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
+@pytest.mark.parametrize("mask", [0o022, 0o027, 0o077, 0o002])
+def test_new_file_respects_the_umask(tmp_path, umask, mask):
+    umask(mask)
+    assert _umask() == mask
+    plain = tmp_path / "plain.bin"
+    with open(plain, "wb") as fh:
+        fh.write(b"x")
+    atomic_write_bytes(tmp_path / "atomic.bin", lambda fh: fh.write(b"x"))
+    with atomic_path(tmp_path / "by_name.exr") as tmp:  # encoders that write by name
+        tmp.unlink()  # ... may recreate the file themselves
+        tmp.write_bytes(b"x")
+    assert _mode(tmp_path / "atomic.bin") == 0o666 & ~mask == _mode(plain)
+    assert _mode(tmp_path / "by_name.exr") == 0o666 & ~mask
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
+def test_replacing_keeps_the_old_files_mode(tmp_path, umask):
+    umask(0o022)
+    path = tmp_path / "image.hdr"
+    path.write_bytes(b"old")
+    os.chmod(path, 0o640)
+    atomic_write_bytes(path, lambda fh: fh.write(b"new"))
+    assert path.read_bytes() == b"new"
+    assert _mode(path) == 0o640  # as open(path, "w") would leave it
+
+
+def test_exception_mid_write_leaves_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / "image.pfm"
+    path.write_bytes(b"old contents")
+
+    def half_then_fail(fh):
+        fh.write(b"partial")
+        fh.flush()
+        raise RuntimeError("encoder failed")
+
+    with pytest.raises(RuntimeError, match="encoder failed"):
+        atomic_write_bytes(path, half_then_fail)
+    assert path.read_bytes() == b"old contents"
+    assert sorted(os.listdir(tmp_path)) == ["image.pfm"]
+
+
+def test_crash_mid_write_leaves_old_file_intact(tmp_path):
+    # A process that dies without unwinding (os._exit: no finally, no cleanup)
+    # in the middle of writing: the target still holds the old bytes; only a
+    # hidden temporary file may remain, never a partial file under the name.
+    path = tmp_path / "capture.exr"
+    path.write_bytes(b"old contents")
+    code = (
+        "import os, sys\n"
+        "from relight._io_atomic import atomic_write_bytes\n"
+        "def w(fh):\n"
+        "    fh.write(b'partial'); fh.flush(); os._exit(3)\n"
+        "atomic_write_bytes(sys.argv[1], w)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-c", code, str(path)], env=env, cwd=ROOT)
+    assert r.returncode == 3
+    assert path.read_bytes() == b"old contents"
+    left = sorted(set(os.listdir(tmp_path)) - {"capture.exr"})
+    assert all(n.startswith(".capture.exr.") and n.endswith(".tmp.exr") for n in left), left
+
+
+def test_missing_folder_is_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        atomic_write_bytes(tmp_path / "no" / "file.bin", lambda fh: fh.write(b"x"))
