@@ -23,7 +23,7 @@ import numpy as np
 from ._io_errors import ImageFormatError, check_radiance
 from ._io_png import read_png
 
-__all__ = ["DiligentData", "read_diligent"]
+__all__ = ["DiligentData", "diligent_capture", "read_diligent"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,3 +141,39 @@ def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = 
         normals_gt=normals,
         filenames=tuple(names[i] for i in index),
     )
+
+
+def diligent_capture(data: DiligentData, lights=None, saturation: float = 0.995):
+    """A DiLiGenT capture as (``stage.Capture``, ``stage.Surface``) for
+    ``relight.fit``: one orthographic view down -z, a distant rig with the
+    calibrated directions and RGB intensities, one sample per mask pixel (unit
+    area, position (column, -row, 0) in pixels, shading frame = the camera's, so
+    a fitted normal is in the benchmark's camera frame). ``lights``: indices to
+    keep (default all). Observations are valid where the pixel is in the mask,
+    the light is above the camera-facing plane and no channel is saturated
+    (>= ``saturation`` of the 16-bit range)."""
+    import jax.numpy as jnp
+
+    import stage
+
+    idx = np.arange(len(data.filenames)) if lights is None else np.asarray(lights)
+    rows, cols = np.nonzero(data.mask)
+    P = len(rows)
+    if P == 0:
+        raise ValueError("diligent_capture: the mask selects no pixels")
+    rig = stage.make_rig(data.light_directions[idx], data.light_intensities[idx], near_field=False)
+    h, w = data.mask.shape
+    cam = stage.orthographic((0.0, 0.0, 1000.0), extent_mm=float(h), width=w, height=h)
+    img = data.images[idx][:, rows, cols, :]  # [L, P, 3]
+    valid = np.all(img < saturation, axis=-1) & (data.light_directions[idx, 2] > 0)[:, None]
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    ones = np.ones(P)
+    zero = np.zeros(P)
+    surface = stage.Surface(
+        position=f32(np.stack([cols - w / 2, h / 2 - rows, zero], 1)),
+        normal=f32(np.stack([zero, zero, ones], 1)), tangent=f32(np.stack([ones, zero, zero], 1)),
+        bitangent=f32(np.stack([zero, ones, zero], 1)),
+        uv=f32(np.stack([(cols + 0.5) / w, 1 - (rows + 0.5) / h], 1)), area=f32(ones),
+        texel_index=jnp.asarray(rows * w + cols, jnp.int32), face=jnp.zeros(P, jnp.int32), resolution=(h, w))
+    capture = stage.Capture(f32(img[None]), jnp.asarray(valid[None]), rig, (cam,))
+    return capture, surface

@@ -9,6 +9,7 @@ from ._io_capture import open_capture as open_capture
 from ._io_capture import read_capture as read_capture
 from ._io_capture import write_capture as write_capture
 from ._io_diligent import DiligentData as DiligentData
+from ._io_diligent import diligent_capture as diligent_capture
 from ._io_diligent import read_diligent as read_diligent
 from ._io_errors import ImageFormatError as ImageFormatError
 from ._io_errors import check_radiance as check_radiance
@@ -45,6 +46,7 @@ __all__ = [
     "is_map_set",
     "open_capture",
     "read_capture",
+    "diligent_capture",
     "read_diligent",
     "read_exr",
     "read_exr_channels",
