@@ -275,8 +275,8 @@ def _rungs(model) -> tuple[int, ...]:
 
 def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
         solver: str = "lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
-        holdout: int = 5, chunk: int = 2048, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-6,
-        atol: float = 1e-7, progress=None) -> Fit:
+        holdout: int = 5, chunk: int = 2048, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
+        atol: float = 1e-6, progress=None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
     ``model``: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",

@@ -56,7 +56,9 @@ def photometric_stereo(obs, w, wi, wo, irr, fit_normal: bool):
         n = safe_normalize(b)
         # A normal facing away from the camera-side hemisphere is a failed
         # solve (too few or coplanar lights): keep the surface's.
-        ok = jnp.all(jnp.isfinite(n)) & (n[2] > 0.05)
+        # So is a normal with the camera behind it: the samples were seen.
+        wo_mean = safe_normalize(jnp.sum(s[:, None] * wo, 0) + 1e-12 * z)
+        ok = jnp.all(jnp.isfinite(n)) & (n[2] > 0.05) & (n @ wo_mean > 0.05)
         n = jnp.where(ok, n, z)
     else:
         n = z

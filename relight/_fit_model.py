@@ -126,13 +126,22 @@ def specular(lay_model: int, rho_s, alpha, wi, wo):
     return m(wi, wo)
 
 
+# Smallest cosine of the view to the fitted normal (about 88.9 degrees).
+_COS_O_MIN = 0.02
+
+
 def predict(p: Params, lay: Layout, wi, wo, irr):
     """Radiance [N, C] of one sample: wi [N, 3], wo [N, 3] in the surface's
     frame, irradiance at normal incidence irr [N, C]."""
     R = frame(p["normal"], p["phi"])
     wi_f, wo_f = wi @ R.T, wo @ R.T
+    # Every observation was seen by its camera, so the view cannot be below the
+    # fitted normal's horizon: keep it just above (a tilted normal at a grazing
+    # view would otherwise zero the whole prediction and its gradient, and the
+    # solver would stop there reporting success).
+    wo_f = safe_normalize(jnp.concatenate([wo_f[..., :2], jnp.maximum(wo_f[..., 2:3], _COS_O_MIN)], axis=-1))
     cos_i = jnp.maximum(wi_f[..., 2:3], 0.0)
-    lit = (wi_f[..., 2:3] > 0) & (wo_f[..., 2:3] > 0)
+    lit = wi_f[..., 2:3] > 0
     f = jnp.where(lit, p["rho_d"] / jnp.pi, 0.0) + specular(lay.model, p["rho_s"], p["alpha"], wi_f, wo_f)
     return f * cos_i * irr
 

@@ -67,9 +67,11 @@ def rel_rms(pred, obs, valid):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("object_dir", type=Path)
-    ap.add_argument("--model", default="ggx", help="fit model rung or 'auto' (default: ggx)")
+    ap.add_argument("--model", default="blinn_phong", help="fit model rung or 'auto' (default: blinn_phong)")
     ap.add_argument("--solver", default="lm")
     ap.add_argument("--chunk", type=int, default=2048)
+    ap.add_argument("--rounds", type=int, default=6, help="rounds of 20 solver steps (default: 6)")
+    ap.add_argument("--subsample", type=int, default=1, help="fit every k-th pixel in x and y (quick looks)")
     ap.add_argument("--out", type=Path, default=None, help="write <name>.json and <name>_normals.png here")
     a = ap.parse_args(argv)
 
@@ -77,6 +79,12 @@ def main(argv=None):
     from relight.io import diligent_capture, read_diligent
 
     d = read_diligent(a.object_dir)
+    if a.subsample > 1:
+        import dataclasses
+
+        keep = np.zeros_like(d.mask)
+        keep[::a.subsample, ::a.subsample] = True
+        d = dataclasses.replace(d, mask=d.mask & keep)
     if d.normals_gt is None:
         raise SystemExit(f"{a.object_dir}: no Normal_gt.mat, cannot score normals")
     name = a.object_dir.name
@@ -90,7 +98,7 @@ def main(argv=None):
     err_base = angular_error_deg(n_base, gt)
     capture, surface = diligent_capture(d)
     t0 = time.perf_counter()
-    f = relight.fit(capture, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk)
+    f = relight.fit(capture, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk, rounds=a.rounds)
     t_fit = time.perf_counter() - t0
     err_fit = angular_error_deg(np.asarray(f.normal), gt)
 
@@ -100,7 +108,7 @@ def main(argv=None):
     valid = np.all(obs < 0.995, -1) & (d.light_directions[held, 2] > 0)[:, None]
     base_pred = predict_lambert(n_tr, alb_tr, d, held)
     cap_tr, _ = diligent_capture(d, lights=train)
-    f_tr = relight.fit(cap_tr, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk)
+    f_tr = relight.fit(cap_tr, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk, rounds=a.rounds)
     cap_h, _ = diligent_capture(d, lights=held)
     fit_pred = predict_fit(f_tr, cap_h, surface)
     e_base, e_fit = rel_rms(base_pred, obs, valid), rel_rms(fit_pred, obs, valid)
