@@ -1,0 +1,35 @@
+"""Where a fit's time goes: per-texel cost of one forward evaluation of the
+model, one forward-mode Jacobian, and Optimistix Levenberg-Marquardt at 1 and
+20 steps, for Lambert + GGX + normal on 192 observations x RGB (one chunk of
+256 texels, float32, compile excluded).
+
+    python scripts/profile_fit_step.py
+"""
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from relight import _fit, _fit_model
+from relight._fit_model import Layout
+Pc, N = 256, 192
+rng = np.random.default_rng(0)
+def unit(x): return x/np.linalg.norm(x,axis=-1,keepdims=True)
+wi = unit(rng.normal(size=(Pc,N,3))); wi[...,2]=np.abs(wi[...,2]); wo = np.broadcast_to(unit(np.array([0.1,0,1.0])),(Pc,N,3)).copy()
+obs = rng.uniform(0.01,0.5,(Pc,N,3)).astype(np.float32); w = np.ones_like(obs); h=0*w; irr=np.ones_like(obs)
+wi=wi.astype(np.float32); wo=wo.astype(np.float32)
+lay = Layout(2, True, 0.07)
+u0 = jnp.zeros((Pc, lay.size), jnp.float32)
+f = jax.jit(jax.vmap(lambda u,a,b,c: _fit_model.predict(_fit_model.unpack(u,lay),lay,a,b,c)))
+J = jax.jit(jax.vmap(lambda u,a,b,c: jax.jacfwd(lambda v: _fit_model.predict(_fit_model.unpack(v,lay),lay,a,b,c))(u)))
+for name, fn in (("predict", f), ("jacfwd", J)):
+    fn(u0,wi,wo,irr).block_until_ready(); t=time.perf_counter()
+    for _ in range(5): fn(u0,wi,wo,irr).block_until_ready()
+    print(name, (time.perf_counter()-t)/5/Pc*1e6, "us/texel")
+args = [jnp.asarray(x) for x in (obs,w,h,wi,wo,irr)]
+for ms in (1, 20):
+    kw = dict(lay=lay, solver="lm", max_steps=ms, rtol=1e-12, atol=1e-12, cauchy=0.1)
+    _fit._solve_chunk(u0,*args,**kw)[0].block_until_ready(); t=time.perf_counter()
+    out=_fit._solve_chunk(u0,*args,**kw); out[0].block_until_ready()
+    print("solve max_steps", ms, (time.perf_counter()-t)/Pc*1e3, "ms/texel", np.mean(np.asarray(out[3])))
