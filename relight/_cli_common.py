@@ -15,6 +15,7 @@ from tqdm.auto import tqdm
 import stage
 
 from ._io_atomic import atomic_write_bytes
+from ._texture_set import _jsonable as jsonable  # noqa: F401  (one JSON conversion for maps.json and the CLI)
 
 
 class CLIError(Exception):
@@ -26,18 +27,6 @@ def bar(total, desc, quiet):
     return tqdm(total=total, desc=desc, unit="it", leave=False, disable=quiet, dynamic_ncols=True)
 
 
-def jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, Path):
-        return str(x)
-    if isinstance(x, np.generic):
-        return x.item()
-    if hasattr(x, "__array__"):
-        return np.asarray(x).tolist()
-    return x
 
 
 def write_json(path: Path, obj) -> None:

@@ -14,13 +14,15 @@ import stage
 
 from ._cli_common import (CLIError, bar, camera_to_json, cameras_from_json, ensure_out, rig_to_json, texel_surface,
                           write_json, write_preview, write_settings)
+from ._fit import SOLVERS as METHODS
 from ._io_capture import open_capture
+from ._maps import MODELS, SUBSURFACE
 from ._io_exr import write_exr
 from ._preview import texture_view
 from ._texture_set import is_map_set, read_maps, write_maps, write_text_atomic
 
-METHODS = ("lm", "gn", "dogleg", "bfgs")
-FIT_MODELS = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "auto")
+# relight.fit's rungs (subsurface is fitted afterwards by fit_subsurface) and the ladder.
+FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
 
 
 def add_parser(sub) -> None:

@@ -12,11 +12,11 @@ import numpy as np
 from ._cli_common import (CLIError, bar, cameras_from_json, ensure_out, parse_cameras, texel_surface, write_preview,
                           write_settings, auto_exposure)
 from ._io_exr import write_exr
+from ._render_samples import METHODS
 
 # "rig": the environment seen through a light rig's lights (Debevec et al. 2000)
 # -- the only method for a capture (its own OLAT images), and for a map set the
 # model rendered under the same rig (relight.render's default). The others need a map set.
-METHODS = ("rig", "dense", "fast", "reference")
 
 
 def add_parser(sub) -> None:
