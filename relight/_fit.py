@@ -333,7 +333,8 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
 
     if len(rungs) == 1:
         choice = np.full(P, rungs[0], np.int32)
-        fits = {rungs[0]: _fit_rung(data, w, zero, every, Layout(rungs[0], normals, floor), None, opts, progress)}
+        fits = {rungs[0]: (every, _fit_rung(data, w, zero, every, Layout(rungs[0], normals, floor), None, opts,
+                                              progress))}
         heldout = np.zeros(P, dt)
     else:
         hmask = (light % holdout == holdout // 2)[..., None].astype(dt) * w
@@ -356,7 +357,6 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
             if len(sel):
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
                                           None))
-        # Single-rung fits cover every sample; ladder fits a subset each.
     out = _assemble(fits, choice, P, normals, floor, dt, surface)
     nobs = n_valid.astype(np.float32)
     empty = nobs < _MIN_OBSERVATIONS
@@ -384,8 +384,7 @@ def _assemble(fits, choice, P, normals, floor, dt, surface):
                normal=np.zeros((P, 3), dt), tangent=np.zeros((P, 3), dt), residual=np.zeros(P, dt),
                result=np.zeros(P, np.int32), steps=np.zeros(P, np.int32), uncertainty=np.zeros((P, 9), dt))
     T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
-    for k, entry in fits.items():
-        sel, r = entry if isinstance(entry, tuple) else (np.arange(P), entry)
+    for k, (sel, r) in fits.items():
         lay = Layout(k, normals, floor)
         p = _physical(r["u"], lay)
         out["rho_d"][sel] = p["rho_d"]
@@ -426,10 +425,8 @@ def _observations(capture, surface, s, e, n_keep, dt):
     order = np.argsort(~wmask, axis=1, kind="stable")[:, :n_keep]
     if order.shape[1] < n_keep:  # fewer observations than the rounded-up count: pad with invalid ones
         order = np.concatenate([order, np.repeat(order[:, -1:], n_keep - order.shape[1], axis=1)], axis=1)
-        wmask = wmask.copy()
     take = lambda a: np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)  # noqa: E731
     obs, wm, wi, wo, irr, li = take(obs), take(wmask), take(wi), take(wo), take(irr), take(li)
-    if order.shape[1] > wmask.shape[1] or n_keep > wmask.shape[1]:
-        wm[:, wmask.shape[1]:] = False
+    wm[:, wmask.shape[1]:] = False  # the repeated padding columns, if any
     w = np.broadcast_to(wm[..., None], obs.shape).astype(dt)
     return obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt), li
