@@ -154,29 +154,28 @@ def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, rtol, at
         sw = jnp.sqrt(w)
         scale = jnp.sqrt(jnp.sum(w * obs * obs) / jnp.maximum(jnp.sum(w), 1.0))
         c = None if cauchy is None else cauchy * scale + 1e-12
+        # Component-major [3, N] for the model (it vectorises over the lights).
+        obs, sw, h, wi, wo, irr = (x.T for x in (obs, sw, h, wi, wo, irr))
+        res = _fit_model.materialised_residual(obs, sw, wi, wo, irr, lay, c)
 
-        def raw(u):
-            return _fit_model.predict(_fit_model.unpack(u, lay), lay, wi, wo, irr) - obs
-
-        def residual(u, _):
-            return _fit_model.robust(sw * raw(u), c).reshape(-1)
-
-        sol = optx.least_squares(residual, _solver(solver, rtol, atol), u0, max_steps=max_steps, throw=False)
+        sol = optx.least_squares(lambda u, _: res(u), _solver(solver, rtol, atol), u0, max_steps=max_steps,
+                                 throw=False)
         u1 = sol.value
-        cost0 = jnp.sum(residual(u0, None) ** 2)
-        cost1 = jnp.sum(residual(u1, None) ** 2)
+        cost0 = jnp.sum(res(u0) ** 2)
+        cost1 = jnp.sum(res(u1) ** 2)
         good = jnp.all(jnp.isfinite(u1)) & jnp.isfinite(cost1) & (cost1 <= cost0 * (1 + 1e-6) + 1e-30)
         u = jnp.where(good, u1, u0)
         code = jnp.where(good, sol.result._value, FAILED_NONFINITE)
-        r = raw(u)
-        rms = jnp.sqrt(jnp.sum(w * r * r) / jnp.maximum(jnp.sum(w), 1.0))
-        hmse = jnp.sum(h * r * r) / jnp.maximum(jnp.sum(h), 1.0)
+        r_u, J, pred = _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)
+        raw = pred - obs
+        w2 = sw * sw
+        rms = jnp.sqrt(jnp.sum(w2 * raw * raw) / jnp.maximum(jnp.sum(w2), 1.0))
+        hmse = jnp.sum(h * raw * raw) / jnp.maximum(jnp.sum(h), 1.0)
         # One-sigma uncertainties from the Gauss-Newton covariance s^2 (J^T J)^-1
         # of the (robust) residual, mapped to the physical parameters.
-        J = jax.jacfwd(lambda v: residual(v, None))(u)
         k = u.shape[0]
-        dof = jnp.maximum(jnp.sum(w) - k, 1.0)
-        s2 = jnp.sum(residual(u, None) ** 2) / dof
+        dof = jnp.maximum(jnp.sum(w2) - k, 1.0)
+        s2 = jnp.sum(r_u ** 2) / dof
         jtj = J.T @ J
         ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
         cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))

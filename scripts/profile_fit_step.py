@@ -1,6 +1,7 @@
 """Where a fit's time goes: per-texel cost of one forward evaluation of the
-model, one forward-mode Jacobian, and Optimistix Levenberg-Marquardt at 1 and
-20 steps, for Lambert + GGX + normal on 192 observations x RGB (one chunk of
+reference model (``_fit_model.predict``), its forward-mode Jacobian, the
+solver's structured residual + Jacobian (``_fit_model.residual_and_jacobian``),
+and Optimistix Levenberg-Marquardt at 1 and 20 steps, for Lambert + GGX + normal on 192 observations x RGB (one chunk of
 256 texels, float32, compile excluded).
 
     python scripts/profile_fit_step.py
@@ -23,9 +24,13 @@ lay = Layout(2, True, 0.07)
 u0 = jnp.zeros((Pc, lay.size), jnp.float32)
 f = jax.jit(jax.vmap(lambda u,a,b,c: _fit_model.predict(_fit_model.unpack(u,lay),lay,a,b,c)))
 J = jax.jit(jax.vmap(lambda u,a,b,c: jax.jacfwd(lambda v: _fit_model.predict(_fit_model.unpack(v,lay),lay,a,b,c))(u)))
-for name, fn in (("predict", f), ("jacfwd", J)):
-    fn(u0,wi,wo,irr).block_until_ready(); t=time.perf_counter()
-    for _ in range(5): fn(u0,wi,wo,irr).block_until_ready()
+T = lambda x: jnp.swapaxes(jnp.asarray(x), 1, 2)
+RJ = jax.jit(jax.vmap(lambda u,o,s,a,b,c: _fit_model.residual_and_jacobian(u,o,s,a,b,c,lay,0.02)[1]))
+cm = (T(obs), T(w), T(wi), T(wo), T(irr))
+for name, fn, a in (("predict (reference)", f, (wi,wo,irr)), ("jacfwd of predict", J, (wi,wo,irr)),
+                    ("residual_and_jacobian", RJ, cm)):
+    fn(u0,*a).block_until_ready(); t=time.perf_counter()
+    for _ in range(5): fn(u0,*a).block_until_ready()
     print(name, (time.perf_counter()-t)/5/Pc*1e6, "us/texel")
 args = [jnp.asarray(x) for x in (obs,w,h,wi,wo,irr)]
 for ms in (1, 20):
