@@ -274,7 +274,7 @@ def _rungs(model) -> tuple[int, ...]:
 
 def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
         solver: str = "lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
-        holdout: int = 5, chunk: int = 2048, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
+        holdout: int = 5, chunk: int = 256, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
         atol: float = 1e-6, progress=None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
@@ -289,7 +289,9 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
     ``alpha_floor``: smallest roughness; default :func:`rig_alpha_floor`.
 
     Samples are solved ``chunk`` at a time (``jax.vmap`` over the chunk), so
-    solver memory is bounded by the chunk; each sample gets up to ``rounds *
+    solver memory is bounded by the chunk (a vmapped solve runs until its
+    slowest sample stops, so small chunks waste fewer steps; 64-256 measured
+    best on 2 CPU cores, ``scripts/bench_fit.py``); each sample gets up to ``rounds *
     steps_per_round`` steps, later rounds only for samples still unconverged
     (compacted). ``progress(n)`` reports finished samples (``model="auto"``
     reports each rung's pass). NaN never leaves: a sample with too few

@@ -226,8 +226,8 @@ def residual_and_jacobian(u, obs, sw, wi, wo, irr, lay: Layout, c):
     cols = [j_rho]
     if k:
         cols.append(g[None] * (d_lobe[:, None] * cos_i[None, None] + base[None] * d_cos[:, None]))
-    J = jnp.concatenate(cols, axis=0).reshape(3 + k, -1).T
-    return r.reshape(-1), J, pred
+    Jt = jnp.concatenate(cols, axis=0).reshape(3 + k, -1)
+    return r.reshape(-1), Jt.T, pred
 
 
 def materialised_residual(obs, sw, wi, wo, irr, lay: Layout, c):
@@ -243,7 +243,7 @@ def materialised_residual(obs, sw, wi, wo, irr, lay: Layout, c):
     @residual.defjvp
     def _jvp(primals, tangents):
         r, J, _ = residual_and_jacobian(primals[0], obs, sw, wi, wo, irr, lay, c)
-        return r, J @ tangents[0]
+        return r, tangents[0] @ J.T
 
     return residual
 
