@@ -13,19 +13,23 @@ multiply-add per byte pair read), and XLA lowers the light-axis reduction of a
 light-major ``[L, P, C]`` array to a column reduction that touches L separate
 streams per output vector, or, with the per-channel weight broadcast fused in,
 to scalar code for the ``index mod C`` arithmetic; both ran at ~0.1 of the
-machine's read bandwidth. Here the samples are cut into chunks of ``chunk``
-contiguous values (a few KiB, resident in L1/L2); for each chunk the lights are
-streamed in order, each adding one contiguous row segment times a
-pre-broadcast weight row (materialised once, so the fused loop body is a plain
-vectorised multiply-add). That reads the stack exactly once, sequentially per
-light, and reaches 0.8-0.9 of a numpy reduction's bandwidth for float32 and
-~0.65 for float16, where the half-to-float conversion dominates
-(scripts/bench_relight.py, docs/relight_io.md).
+machine's read bandwidth. Here the samples are cut into chunks of a few
+thousand contiguous values (the float32 accumulator stays in L1); for each
+chunk the lights are streamed in order, each adding one contiguous row
+segment, viewed as [rows, period], times that light's weights repeated over
+one period (a multiple of C and of the vector width, so the broadcast runs
+along the major axis and the fused loop body is a plain vectorised
+multiply-add). That reads the stack exactly once, sequentially per light,
+and runs at about numpy's read bandwidth for float32 and float16 alike
+(scripts/bench_relight.py, docs/relight_io.md). An earlier version
+multiplied by a weight row pre-broadcast over the whole chunk ([L, chunk]
+floats, out of L1/L2): that second stream held float16 to ~0.65 of it.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -35,9 +39,10 @@ __all__ = ["relight_olat", "relight_olat_sweep"]
 
 # Floats per chunk of the flattened (sample, channel) axis (summed over the K
 # outputs of a sweep). Measured on the 2-core AMD EPYC dev machines (ratio to
-# numpy's bandwidth, median of interleaved rounds): 1536-4608 floats ran at
-# 0.85-1.1, 12k and above at 0.3-0.6 (the accumulator leaves L1).
-_CHUNK_FLOATS = 3072
+# numpy's bandwidth, median of interleaved rounds, 346 lights x 1e6 x RGB):
+# 3072 floats ran at 0.98-1.1 (float16) and 1.1 (float32), 6144 at 1.1-1.2 and
+# 1.1; 12k and above fell to 0.3-0.6 (the accumulator leaves L1).
+_CHUNK_FLOATS = 6144
 # Lights per loop iteration (unrolling amortises XLA's per-iteration cost):
 # 1-2 reached ~0.6, 4 ~0.9, and 16 or more fell to ~0.3 (code-size effects).
 _UNROLL = 4
@@ -53,29 +58,38 @@ def _check(radiance, weights):
     return radiance, weights
 
 
+def _period(channels: int) -> int:
+    """Length of the weight pattern along the flattened (sample, channel) axis:
+    a multiple of C and of 8 float32 lanes, at least 24."""
+    per = channels * 8 // math.gcd(channels, 8)
+    return per * -(-24 // per)
+
+
 def _relight_flat(stack: Array, w: Array, channels: int, chunk_samples: int) -> Array:
     """``stack [L, N]`` (N = P * C, channel-minor), ``w [K, L, C]`` float32 -> ``[K, N]``."""
     n_lights, n = stack.shape
     k_out = w.shape[0]
-    width = channels * chunk_samples
+    per = _period(channels)
+    width = max(per, (channels * chunk_samples) // per * per)
     n_main = (n // width) * width
     out_parts = []
     if n_main:
-        # The weight row of every light, broadcast over one chunk: [K, L, width].
-        # optimization_barrier keeps XLA from fusing the broadcast back into the
-        # loop body, where its index-mod-C arithmetic would defeat vectorisation.
-        wrow = jax.lax.optimization_barrier(jnp.tile(w, (1, 1, chunk_samples)))
+        # Each light's weights repeated over one period [K, L, per]; a chunk is
+        # viewed as [width / per, per] so the weight row broadcasts along the
+        # major axis: a plain vectorised multiply-add per light, with the
+        # pattern (L x per floats) resident in cache.
+        pattern = jnp.tile(w, (1, 1, per // channels))
 
         def chunk_body(k, out):
             def light_body(l, acc):
                 seg = jax.lax.dynamic_slice(stack, (l, k * width), (1, width)).astype(jnp.float32)
-                wl = jax.lax.dynamic_index_in_dim(wrow, l, axis=1, keepdims=False)  # [K, width]
-                return acc + seg * wl
+                wl = jax.lax.dynamic_index_in_dim(pattern, l, axis=1, keepdims=False)  # [K, per]
+                return acc + seg.reshape(1, width // per, per) * wl[:, None, :]
 
             acc = jax.lax.fori_loop(
-                0, n_lights, light_body, jnp.zeros((k_out, width), jnp.float32), unroll=_UNROLL
+                0, n_lights, light_body, jnp.zeros((k_out, width // per, per), jnp.float32), unroll=_UNROLL
             )
-            return jax.lax.dynamic_update_slice(out, acc, (0, k * width))
+            return jax.lax.dynamic_update_slice(out, acc.reshape(k_out, width), (0, k * width))
 
         main = jax.lax.fori_loop(0, n_main // width, chunk_body, jnp.zeros((k_out, n_main), jnp.float32))
         out_parts.append(main)
@@ -145,9 +159,9 @@ def relight_olat_sweep(
     environment rotations from :func:`relight.envmap.rotation_sweep_weights`),
     reading the stack once: ``out[k] = relight_olat(radiance, weights[k])``.
 
-    Cost: one pass over the stack plus K multiply-adds per value, so for K up
-    to ~10 it takes about the time of a single relight; peak extra memory is
-    the K outputs.
+    Cost: one pass over the stack plus K multiply-adds per value (K = 4 took
+    1.9-2.5x one relight, against 4x for four passes; scripts/bench_relight.py
+    --sweep 4); peak extra memory is the K outputs.
     """
     radiance, weights = _check(radiance, weights)
     if weights.ndim != 3:

@@ -36,6 +36,19 @@ def test_matches_float64_reference(stack):
     assert_close(relight_olat(radiance[0], w), ref[0], dtype=jnp.float32)
 
 
+@pytest.mark.parametrize("channels", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("chunk_samples", [1, 7, 100, None])
+def test_any_channel_count_and_chunk(channels, chunk_samples):
+    """The weight pattern's period (a multiple of C and of 8 lanes) and the
+    chunk rounding hold for every C and chunk size, main loop and tail alike:
+    float32 accumulation against float64, K = 2 outputs."""
+    rng = np.random.default_rng(channels)
+    radiance = rng.random((11, 997, channels)).astype(np.float32)
+    ws = rng.random((2, 11, channels)).astype(np.float32)
+    ref = np.einsum("lpc,klc->kpc", radiance.astype(np.float64), ws.astype(np.float64))
+    assert_close(relight_olat_sweep(radiance, ws, chunk_samples=chunk_samples), ref, dtype=jnp.float32)
+
+
 def test_float16_storage(stack):
     radiance, w = stack
     half = radiance.astype(np.float16)
