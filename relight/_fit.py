@@ -274,7 +274,7 @@ def _rungs(model) -> tuple[int, ...]:
 
 def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
         solver: str = "lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
-        holdout: int = 5, chunk: int = 256, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
+        holdout: int = 5, chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
         atol: float = 1e-6, progress=None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
