@@ -222,7 +222,8 @@ def residual_and_jacobian(u, obs, sw, wi, wo, irr, lay: Layout, c):
     r, dr = jax.jvp(lambda x: robust(x, c), (sw * (pred - obs),), (jnp.ones_like(obs),))
     g = dr * sw * irr  # d r / d pred, per observation [3, N]
     # Diffuse columns: channel c's rows depend on u_c only.
-    j_rho = (rho * (1.0 - rho) / jnp.pi)[:, None, None] * jnp.eye(3, dtype=u.dtype)[:, :, None] * (g * cos_i[None])[None]
+    d_rho = (rho * (1.0 - rho) / jnp.pi)[:, None, None] * jnp.eye(3, dtype=u.dtype)[:, :, None]
+    j_rho = d_rho * (g * cos_i[None])[None]
     cols = [j_rho]
     if k:
         cols.append(g[None] * (d_lobe[:, None] * cos_i[None, None] + base[None] * d_cos[:, None]))

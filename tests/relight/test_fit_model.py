@@ -38,8 +38,10 @@ def _scene(seed, edge=None):
 
 @jax.jit(static_argnames=("lay", "c"))
 def _reference(u, lay, wi, wo, irr, obs, sw, c):
-    f = lambda v: _fit_model.robust(sw * (_fit_model.predict(_fit_model.unpack(v, lay), lay, wi, wo, irr) - obs),  # noqa: E731
-                                    c).reshape(-1)
+    def f(v):
+        pred = _fit_model.predict(_fit_model.unpack(v, lay), lay, wi, wo, irr)
+        return _fit_model.robust(sw * (pred - obs), c).reshape(-1)
+
     return f(u), jax.jacfwd(f)(u)
 
 
