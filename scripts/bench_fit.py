@@ -26,7 +26,7 @@ difference Jacobian), one call per texel, same objective (the same forward
 model written in numpy: Lambert + GGX with separable Smith G1, Schlick F,
 (a, b, 1) normal chart, sigmoid transforms, the same square-rooted Cauchy
 residual with the same scale), the same start (relight's photometric-stereo +
-roughness-grid start, computed through ``relight._fit_init`` under JAX), the
+roughness-grid start, computed through ``relight.fitting._init`` under JAX), the
 same valid observations, on a random subset of ``--scipy-texels`` of the
 texels. Its throughput is that subset's texels / seconds. Accuracies
 (median relative albedo and roughness error, median normal angle error) are
@@ -159,7 +159,7 @@ def np_predict(u, wi, wo, irr, floor):
     al = floor + (1.0 - floor) * sig(u[4])
     n = np.array([u[5], u[6], 1.0])
     n /= np.linalg.norm(n)
-    # Fitted frame: surface tangent (1,0,0) projected off n, b = n x t (relight._fit_model.frame, phi = 0).
+    # Fitted frame: surface tangent (1,0,0) projected off n, b = n x t (relight.fitting._model.frame, phi = 0).
     t = np.array([1.0, 0.0, 0.0]) - n[0] * n
     t /= np.linalg.norm(t)
     b = np.cross(n, t)
@@ -193,8 +193,8 @@ def np_residual(u, obs, wi, wo, irr, floor, c):
 
 
 def packed_data(capture, surface, lay):
-    """relight's per-sample observation arrays and its start u0 (through relight._fit / _fit_init)."""
-    from relight import _fit
+    """relight's per-sample observation arrays and its start u0 (through relight.fitting._driver / _fit_init)."""
+    from relight.fitting import _driver as _fit
 
     n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
     n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
@@ -296,8 +296,8 @@ def main(argv=None):
                 best = row
 
     # scipy on a random subset, same start, same objective.
-    from relight._fit_model import Layout
-    from relight._maps import GGX
+    from relight.fitting._model import Layout
+    from relight.materials._maps import GGX
 
     floor = relight.rig_alpha_floor(rig)
     lay = Layout(GGX, True, floor)

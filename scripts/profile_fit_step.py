@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from relight import _fit, _fit_model
-from relight._fit_model import Layout
+from relight.fitting import _driver as _fit, _model as _fit_model
+from relight.fitting._model import Layout
 Pc, N = 256, 192
 rng = np.random.default_rng(0)
 def unit(x): return x/np.linalg.norm(x,axis=-1,keepdims=True)

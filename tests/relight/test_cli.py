@@ -46,7 +46,7 @@ def test_demo_end_to_end(tmp_path):
     for name in ("albedo.exr", "roughness.exr", "relit_image_based_view.png", "relit_from_fit_view.png",
                  "settings.json", "report.md"):
         assert (out / name).is_file(), name
-    from relight._io_exr import read_exr
+    from relight.io._exr import read_exr
 
     albedo = read_exr(out / "albedo.exr")
     assert albedo.shape == (48, 48, 3) and np.all(np.isfinite(albedo))

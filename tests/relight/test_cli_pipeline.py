@@ -165,8 +165,8 @@ def test_fit_unknown_method_is_a_usage_error(pipeline, tmp_path, capsys):
 def test_fit_options_are_checked_against_relight_fit():
     """--method/--model/--normals reach relight.fit only if its signature takes them;
     asking for one it lacks is an error naming the flag, never silently ignored."""
-    from relight._cli_common import CLIError
-    from relight._cli_fit import fit_kwargs
+    from relight.cli._common import CLIError
+    from relight.cli.fit import fit_kwargs
 
     def old_fit(capture, surface, *, progress=None):
         pass
@@ -299,7 +299,7 @@ def test_image_based_render_takes_each_texel_from_the_nearest_seeing_view():
     from types import SimpleNamespace
 
     import stage
-    from relight._cli_render import _nearest_view
+    from relight.cli.render import _nearest_view
 
     left, front, right = (stage.look_at((x, 0.0, 1300.0)) for x in (-900.0, 0.0, 900.0))
     mask = np.zeros((3, 2, 4), bool)  # [V, L, P]

@@ -30,7 +30,7 @@ from relight.envmap import (
     mirrorball_to_latlong,
     sample_envmap,
 )
-from relight.tonemap import resize_image
+from relight.image import resize_image
 from tests.helpers import assert_close
 from tests.relight._rig import envmap, fibonacci_sphere
 

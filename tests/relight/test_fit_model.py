@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from relight import _fit_model
-from relight._fit_model import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, Layout
+from relight.fitting import _model as _fit_model
+from relight.fitting._model import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, Layout
 
 N = 64
 

@@ -1,4 +1,4 @@
-"""Atomic writes (relight._io_atomic): a failure or a crash mid-write leaves the
+"""Atomic writes (relight.io._atomic): a failure or a crash mid-write leaves the
 old file intact and no partial file under the target name; the new file's
 permissions are those of a plain open(): 0o666 less the umask, or the mode of
 the file it replaces."""
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from relight._io_atomic import _umask, atomic_path, atomic_write_bytes
+from relight.io._atomic import _umask, atomic_path, atomic_write_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -83,7 +83,7 @@ def test_crash_mid_write_leaves_old_file_intact(tmp_path):
     path.write_bytes(b"old contents")
     code = (
         "import os, sys\n"
-        "from relight._io_atomic import atomic_write_bytes\n"
+        "from relight.io._atomic import atomic_write_bytes\n"
         "def w(fh):\n"
         "    fh.write(b'partial'); fh.flush(); os._exit(3)\n"
         "atomic_write_bytes(sys.argv[1], w)\n"

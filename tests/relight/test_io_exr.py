@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from relight._io_atomic import atomic_path
+from relight.io._atomic import atomic_path
 from relight.io import (
     ExrPart,
     ImageFormatError,

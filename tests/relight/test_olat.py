@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from relight._olat import relight_olat, relight_olat_sweep
+from relight.render._olat import relight_olat, relight_olat_sweep
 from relight.envmap import (
     EnvMap,
     envmap_irradiance,

@@ -50,7 +50,7 @@ def small_grace():
 
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data not found at {SHARED_DATA}")
-    from relight._render_fast import area_resample
+    from relight.render._fast import area_resample
 
     env = envmap(SHARED_DATA, "grace")
     return EnvMap(area_resample(jnp.asarray(env.radiance, jnp.float32), 32))

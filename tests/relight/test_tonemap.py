@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from relight.tonemap import srgb_decode, srgb_encode, to_uint8, to_uint16, tonemap
+from relight.image import srgb_decode, srgb_encode, to_uint8, to_uint16, tonemap
 from tests.helpers import assert_close, assert_finite
 
 

@@ -1,0 +1,133 @@
+"""``relight simulate``: render a texel-space OLAT capture of a mesh with the
+demo's skin-like ground-truth material, and write it as a capture folder."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import brdf
+import stage
+
+from ._common import (CLIError, bar, camera_to_json, mesh_spec, parse_cameras, parse_rig, rig_to_json,
+                          texel_surface, write_preview, write_settings)
+from .demo import demo_material
+from ..io._capture import write_capture
+from ..io._exr import write_exr
+from ..materials._maps import material_maps
+from ..image._preview import dilate, texture_view
+from ..io._texture_set import write_maps
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate an OLAT capture of a mesh (texel space) into a capture folder",
+                       description="Simulate a one-light-at-a-time capture of the demo's skin-like material on a "
+                                   "mesh, in texel space, and write a capture folder that `relight fit` reads.")
+    p.add_argument("--mesh", default=None, help="mesh with UVs (.obj/.ply/.glb, mm); default: the bundled head scan")
+    p.add_argument("--rig", default="lsx", help="lsx | dome:N | rig.json (default: lsx, ICT Light Stage X)")
+    p.add_argument("--resolution", type=int, default=64, help="texel grid size N (N x N; default: 64)")
+    p.add_argument("--camera", default="front", help="front | cameras.json (default: front)")
+    p.add_argument("--image-size", type=int, default=256, help="pixels of the 'front' camera (default: 256)")
+    p.add_argument("--noise", default="none",
+                   help="none | EXPOSURE: Poisson shot noise at EXPOSURE photo-electrons per unit radiance "
+                        "(default: none)")
+    p.add_argument("--read-noise", type=float, default=0.0, help="Gaussian read noise in electrons (with --noise)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
+    p.add_argument("--half", action="store_true", help="store radiance as half floats")
+    p.add_argument("--out", required=True, help="capture folder to write")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def _noise(spec: str, read_noise: float):
+    if spec.lower() == "none":
+        if read_noise:
+            raise CLIError("--read-noise needs --noise EXPOSURE")
+        return None
+    try:
+        exposure = float(spec)
+    except ValueError:
+        raise CLIError(f"--noise {spec}: expected 'none' or a positive exposure (electrons per unit radiance)") from None
+    if not exposure > 0 or not np.isfinite(exposure):
+        raise CLIError(f"--noise {spec}: the exposure must be a positive number")
+    if read_noise < 0:
+        raise CLIError(f"--read-noise {read_noise}: must be >= 0")
+    return stage.Sensor(exposure=exposure, read_noise=read_noise, shot_noise=True)
+
+
+def run(args) -> int:
+    if args.resolution < 2:
+        raise CLIError(f"--resolution {args.resolution}: must be at least 2")
+    if args.image_size < 8:
+        raise CLIError(f"--image-size {args.image_size}: must be at least 8")
+    out = Path(args.out)
+    sensor = _noise(args.noise, args.read_noise)
+    if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):
+        raise CLIError(f"--out {out}: exists and is not a capture folder (or an empty folder); refusing to replace it")
+    times = {}
+    t0 = time.perf_counter()
+    spec = mesh_spec(args.mesh)
+    mesh, full = texel_surface(spec, args.resolution, where=str(spec["path"]))
+    rig, rig_desc = parse_rig(args.rig)
+    cams = parse_cameras(args.camera, mesh, args.image_size)
+    times["geometry_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with bar(full.num_samples * rig.num_lights, "visibility (rays)", args.quiet) as b:
+        light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=b.update)
+    cam_vis = stage.camera_visibility(mesh, full, cams)
+    seen = np.nonzero(np.any(cam_vis, axis=0))[0]
+    if len(seen) == 0:
+        raise CLIError(f"--camera {args.camera}: no texel of the mesh is seen by any camera")
+    surface = full.subset(seen)
+    light_vis, cam_vis = light_vis[seen], cam_vis[:, seen]
+    times["visibility_s"] = time.perf_counter() - t0
+
+    rho, f0, alpha = demo_material(surface)
+    truth = brdf.lambert_ggx(rho, f0, alpha)
+    t0 = time.perf_counter()
+    with bar(rig.num_lights * len(cams), "simulate (lights)", args.quiet) as b:
+        capture = stage.simulate(surface, rig, cams, truth, light_vis, cam_vis, progress=b.update)
+    if sensor is not None:
+        capture = stage.sense(capture, sensor, jax.random.PRNGKey(args.seed))
+    times["simulate_s"] = time.perf_counter() - t0
+
+    # Store on the full texel grid: every light image is a texture (viewable in
+    # any EXR viewer); texels without a seen sample are 0 and marked invalid.
+    H, W = full.resolution
+    V, L, _, C = capture.radiance.shape
+    idx = np.asarray(surface.texel_index)
+    radiance = np.zeros((V, L, H * W, C), np.float32)
+    valid = np.zeros((V, L, H * W), bool)
+    radiance[:, :, idx] = np.maximum(np.asarray(capture.radiance, np.float32), 0.0)
+    valid[:, :, idx] = np.asarray(capture.mask)
+    surf_info = {**spec, "resolution": [H, W]}
+    noise = None if sensor is None else {"model": "poisson-gaussian", "exposure": float(args.noise),
+                                         "read_noise": args.read_noise, "seed": args.seed}
+    metadata = {"space": "texel", "surface": surf_info, "rig": rig_desc,
+                "material": "relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5), ground truth in truth/",
+                "noise": noise, "units": {"lengths": "mm", "radiance": "relative to the rig's irradiance"},
+                "writer": "relight simulate"}
+    if out.is_dir() and not any(out.iterdir()):
+        out.rmdir()  # an empty folder may be replaced by the capture
+    t0 = time.perf_counter()
+    write_capture(out, radiance, rig_to_json(rig), [camera_to_json(c, f"cam{i:03d}") for i, c in enumerate(cams)],
+                  valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
+    write_maps(out / "truth", material_maps(surface, rho, f0, alpha), surface, surface_info=spec,
+               metadata={"source": "relight simulate ground truth"})
+    # Preview: view 0 with every light on at once.
+    all_on = radiance[0].sum(axis=0).reshape(H, W, C)
+    covered = np.zeros((H, W), bool)
+    covered.reshape(-1)[idx] = True
+    view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on, covered)})["all_lights"]
+    write_exr(out / "preview_all_lights.exr", view)
+    write_preview(out / "preview_all_lights.png", view)
+    times["write_s"] = time.perf_counter() - t0
+    write_settings(out, "simulate", args, mesh=surf_info, rig=rig_desc, lights=rig.num_lights, views=len(cams),
+                   samples_seen=int(len(seen)), texels=[H, W], timings_s={k: round(v, 3) for k, v in times.items()})
+    if not args.quiet:
+        print(f"wrote {out}/ ({V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen)")
+    return 0

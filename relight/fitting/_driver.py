@@ -1,0 +1,435 @@
+"""Per-sample reflectance fitting with Optimistix, and the model ladder.
+
+Per sample (texel or pixel) the fitter finds, by least squares over every
+(view, light, channel) observation the capture marks valid, the parameters of
+one rung of the ladder (``relight.MODELS``): Lambert; + normalised
+Blinn-Phong; + isotropic GGX (Walter et al. 2007, Smith masking, Schlick
+Fresnel with F0 = the specular albedo: the form Kang et al. 2018 fit);
++ anisotropic GGX with its tangent angle; optionally the shading normal.
+
+1. start (:mod:`relight._fit_init`): photometric stereo on the lights least
+   affected by specular reflection and shadow, then closed-form albedos on a
+   roughness grid;
+2. refine: ``optimistix.least_squares`` (Levenberg-Marquardt by default;
+   Gauss-Newton, Dogleg, BFGS selectable), ``jax.vmap`` over a chunk of
+   samples, chunks over the sample axis so memory is bounded by the chunk,
+   rounds of a few steps with only the unconverged samples going on (packed
+   into full chunks: "straggler compaction"); a Cauchy loss so cast shadows and
+   interreflections do not drag the fit;
+3. ``model="auto"``: every rung is fitted on the training lights and scored
+   on held-out lights; each sample gets the simplest rung whose held-out error
+   is within noise of the best, then is refitted on all lights.
+
+Subsurface (mean free path) is fitted afterwards, across samples, by
+:func:`relight.fit_subsurface`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, Int
+
+import stage
+
+from . import _init as _fit_init
+
+from . import _model as _fit_model
+from ._model import Layout
+from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, MODELS, SUBSURFACE, LadderBRDF, MaterialMaps, material_maps
+
+# The fitter's roughness prior, separate from the model's own floor
+# (brdf.ALPHA_MIN): below this no light stage resolves a GGX lobe.
+ALPHA_FIT_MIN = 0.02
+SOLVERS = ("lm", "gn", "dogleg", "bfgs")
+LOSSES = ("cauchy", "l2")
+# Every parameter a rung may report an uncertainty for (0 where not fitted).
+PARAM_NAMES = ("rho_d.r", "rho_d.g", "rho_d.b", "rho_s", "alpha_x", "alpha_y", "phi", "normal.x", "normal.y")
+# Fewer valid observations (lights x views) than this leave a sample underdetermined.
+_MIN_OBSERVATIONS = 8
+# Result code for a sample whose solve produced a non-finite value or a worse
+# cost than its start (it keeps its start): optimistix's own codes are 0..8.
+FAILED_NONFINITE = 100
+_MAX_STEPS_CODE = int(optx.RESULTS.nonlinear_max_steps_reached._value)
+
+
+def rig_alpha_floor(rig: stage.Rig) -> float:
+    """The smallest GGX roughness a rig's angular light spacing resolves.
+
+    A GGX lobe's half width at half maximum is about 0.64 alpha in the half
+    vector, so about 1.3 alpha in light direction, and its full width about 2.6
+    alpha; with lights a median nearest-neighbour angle Delta apart, at least
+    two lights fall across the lobe only for alpha >= Delta / 2.6 (Light Stage X:
+    Delta ~ 0.19 rad, floor ~ 0.07). Never below ``ALPHA_FIT_MIN``."""
+    d = np.asarray(rig.directions, np.float64)
+    if len(d) < 2:
+        return ALPHA_FIT_MIN
+    cos = np.clip(d @ d.T, -1.0, 1.0)
+    np.fill_diagonal(cos, -1.0)
+    spacing = float(np.median(np.arccos(cos.max(axis=1))))
+    return float(max(ALPHA_FIT_MIN, spacing / 2.6))
+
+
+class Fit(eqx.Module):
+    """The result of :func:`fit`, per sample: parameter maps (rho_d [P, 3],
+    rho_s [P, 1], alpha [P, 2] along the fitted tangent / bitangent, normal and
+    tangent [P, 3] in world space), the ladder rung (``model`` [P], index into
+    ``relight.MODELS``), the RMS residual [P] (radiance units, all valid
+    observations), the held-out RMS [P] (``model="auto"``; else 0), the
+    Optimistix result code [P] (0 = successful; FAILED_NONFINITE = the solve
+    was rejected and the sample kept its start), LM steps taken [P], valid
+    observations [P], one-sigma uncertainties [P, 9] from J^T J (names in
+    ``PARAM_NAMES``, 0 where a rung has no such parameter), and the roughness
+    floor the rig resolves (``alpha_floor``: a fitted alpha at the floor means
+    "narrower than the rig can tell", flagged by ``unresolved``)."""
+
+    rho_d: Float[Array, "sample 3"]
+    rho_s: Float[Array, "sample 1"]
+    alpha: Float[Array, "sample 2"]
+    normal: Float[Array, "sample 3"]
+    tangent: Float[Array, "sample 3"]
+    model: Int[Array, " sample"]
+    residual: Float[Array, " sample"]
+    heldout: Float[Array, " sample"]
+    result: Int[Array, " sample"]
+    steps: Int[Array, " sample"]
+    observed: Float[Array, " sample"]
+    uncertainty: Float[Array, "sample 9"]
+    alpha_floor: float = eqx.field(static=True, default=ALPHA_FIT_MIN)
+    mfp: Float[Array, "sample 3"] | None = None
+
+    @property
+    def f0(self):
+        """The specular albedo as Schlick's F0 [P, 1] (same as ``rho_s``)."""
+        return self.rho_s
+
+    @property
+    def failed(self):
+        """Samples whose solve failed or that had too few observations."""
+        return (self.result != 0) | (self.observed < _MIN_OBSERVATIONS)
+
+    @property
+    def unresolved(self):
+        """Samples whose lobe is at the rig's roughness floor (sharper than it resolves)."""
+        return (self.model >= BLINN_PHONG) & (self.alpha[:, 0] < 1.25 * self.alpha_floor)
+
+    def maps(self, surface: stage.Surface) -> MaterialMaps:
+        """The fit as material maps over ``surface`` (the fitted frame and rungs)."""
+        mfp = None if self.mfp is None else self.mfp
+        return material_maps(surface, self.rho_d, self.rho_s, self.alpha, normal=self.normal, tangent=self.tangent,
+                             mfp=mfp, model=self.model)
+
+    def material(self) -> LadderBRDF:
+        """The fitted BRDF (leading sample axis), in the fitted frame."""
+        return LadderBRDF(self.rho_d, self.rho_s, self.alpha, self.model[:, None], include_diffuse=True)
+
+
+def _solver(name: str, rtol: float, atol: float):
+    # Normal equations + Cholesky: the systems are 3-9 wide and, with LM's
+    # damping, well conditioned; several times cheaper than QR of [N, p].
+    chol = lx.Normal(lx.Cholesky())
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=chol)
+    if name == "gn":
+        return optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=chol)
+    if name == "dogleg":
+        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=chol)
+    return optx.BFGS(rtol=rtol, atol=atol)
+
+
+@jax.jit(static_argnames=("lay",))
+def _start_chunk(obs, w, wi, wo, irr, lay):
+    """Start for each sample, packed to the unconstrained parameters [Pc, size]."""
+    return jax.vmap(lambda *a: _fit_model.pack(_fit_init.start(*a, lay), lay))(obs, w, wi, wo, irr)
+
+
+@jax.jit(static_argnames=("lay", "solver", "max_steps", "rtol", "atol", "cauchy"))
+def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, rtol, atol, cauchy):
+    """``max_steps`` solver steps from u0 for each sample of the chunk (vmapped).
+    Returns (u, rms, code, steps, sigma [Pc, k], held-out MSE)."""
+
+    def one(u0, obs, w, h, wi, wo, irr):
+        sw = jnp.sqrt(w)
+        scale = jnp.sqrt(jnp.sum(w * obs * obs) / jnp.maximum(jnp.sum(w), 1.0))
+        c = None if cauchy is None else cauchy * scale + 1e-12
+        # Component-major [3, N] for the model (it vectorises over the lights).
+        obs, sw, h, wi, wo, irr = (x.T for x in (obs, sw, h, wi, wo, irr))
+        res = _fit_model.materialised_residual(obs, sw, wi, wo, irr, lay, c)
+
+        sol = optx.least_squares(lambda u, _: res(u), _solver(solver, rtol, atol), u0, max_steps=max_steps,
+                                 throw=False)
+        u1 = sol.value
+        cost0 = jnp.sum(res(u0) ** 2)
+        cost1 = jnp.sum(res(u1) ** 2)
+        good = jnp.all(jnp.isfinite(u1)) & jnp.isfinite(cost1) & (cost1 <= cost0 * (1 + 1e-6) + 1e-30)
+        u = jnp.where(good, u1, u0)
+        code = jnp.where(good, sol.result._value, FAILED_NONFINITE)
+        r_u, J, pred = _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)
+        raw = pred - obs
+        w2 = sw * sw
+        rms = jnp.sqrt(jnp.sum(w2 * raw * raw) / jnp.maximum(jnp.sum(w2), 1.0))
+        hmse = jnp.sum(h * raw * raw) / jnp.maximum(jnp.sum(h), 1.0)
+        # One-sigma uncertainties from the Gauss-Newton covariance s^2 (J^T J)^-1
+        # of the (robust) residual, mapped to the physical parameters.
+        k = u.shape[0]
+        dof = jnp.maximum(jnp.sum(w2) - k, 1.0)
+        s2 = jnp.sum(r_u ** 2) / dof
+        jtj = J.T @ J
+        ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
+        cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))
+        Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
+        var = jnp.sum((Jp @ cov) * Jp, axis=1)
+        sigma = jnp.sqrt(jnp.clip(jnp.nan_to_num(var, nan=0.0, posinf=0.0), 0.0, 1e6))
+        return u, rms, code, sol.stats["num_steps"], sigma, hmse
+
+    return jax.vmap(one)(u0, obs, w, h, wi, wo, irr)
+
+
+def _union_index(lay: Layout) -> list[int]:
+    """Where each of a rung's physical parameters goes in PARAM_NAMES."""
+    idx = [0, 1, 2]
+    if lay.model >= BLINN_PHONG:
+        idx += [3, 4]
+    if lay.model >= GGX_ANISO:
+        idx += [5, 6]
+    if lay.normals:
+        idx += [7, 8]
+    return idx
+
+
+def _chunk_size(P: int, chunk: int) -> int:
+    """Samples per solver call: ``chunk``, or for fewer samples the next power of two."""
+    return chunk if P >= chunk else 1 << max(int(P - 1).bit_length(), 3)
+
+
+def _chunks_of(index, size):
+    """Chunks of ``index``, each padded (repeating its last entry) to ``size``:
+    one shape for every call of a fit (straggler rounds and ladder subsets
+    included), so the solver compiles once per rung."""
+    chunk = size
+    for s in range(0, len(index), chunk):
+        idx = index[s:s + chunk]
+        n = len(idx)
+        if n < size:
+            idx = np.concatenate([idx, np.full(size - n, idx[-1])])
+        yield idx, n
+
+
+def _fit_rung(data, w, h, index, lay, u0, opts, progress):
+    """Fit one rung to the samples ``index``; returns per-sample arrays over ``index``."""
+    obs, _, wi, wo, irr = data
+    chunk = opts["size"]
+    n_all = len(index)
+    local = np.arange(n_all)
+    take = lambda x, idx: jnp.asarray(x[index[idx]])  # noqa: E731
+    if u0 is None:
+        u = np.zeros((n_all, lay.size), obs.dtype)
+        for idx, n in _chunks_of(local, chunk):
+            u[idx[:n]] = np.asarray(_start_chunk(take(obs, idx), take(w, idx), take(wi, idx), take(wo, idx),
+                                                 take(irr, idx), lay))[:n]
+    else:
+        u = np.array(u0, obs.dtype)
+    rms = np.zeros(n_all, obs.dtype)
+    hmse = np.zeros(n_all, obs.dtype)
+    code = np.zeros(n_all, np.int32)
+    steps = np.zeros(n_all, np.int32)
+    sigma = np.zeros((n_all, len(_fit_model.physical_vector(_fit_model.unpack(jnp.zeros(lay.size), lay), lay))),
+                     obs.dtype)
+    active = local
+    for _ in range(opts["rounds"]):
+        for idx, n in _chunks_of(active, chunk):
+            out = _solve_chunk(jnp.asarray(u[idx]), take(obs, idx), take(w, idx), take(h, idx), take(wi, idx),
+                               take(wo, idx), take(irr, idx), lay=lay, solver=opts["solver"],
+                               max_steps=opts["steps_per_round"], rtol=opts["rtol"], atol=opts["atol"],
+                               cauchy=opts["cauchy"])
+            uu, rr, cc, kk, ss, hh = (np.asarray(x)[:n] for x in out)
+            sel = idx[:n]
+            u[sel], rms[sel], code[sel], steps[sel], sigma[sel], hmse[sel] = uu, rr, cc, steps[sel] + kk, ss, hh
+            if progress is not None:
+                progress(int(np.sum(cc != _MAX_STEPS_CODE)))
+        active = active[code[active] == _MAX_STEPS_CODE]
+        if len(active) == 0:
+            break
+    if progress is not None and len(active):
+        progress(len(active))
+    return dict(u=u, rms=rms, hmse=hmse, code=code, steps=steps, sigma=sigma)
+
+
+def _physical(u, lay):
+    """Unpack a rung's u [n, size] to numpy physical maps."""
+    p = jax.vmap(lambda v: _fit_model.unpack(v, lay))(jnp.asarray(u))
+    return {k: np.asarray(v) for k, v in p.items()}
+
+
+def _rungs(model) -> tuple[int, ...]:
+    if model == "auto":
+        return (LAMBERT, BLINN_PHONG, GGX, GGX_ANISO)
+    if model not in MODELS or model == "subsurface":
+        raise ValueError(f"fit: model must be 'auto' or one of {MODELS[:SUBSURFACE]} (subsurface: "
+                         f"relight.fit_subsurface after a fit), got {model!r}")
+    return (MODELS.index(model),)
+
+
+def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
+        solver: str = "lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
+        holdout: int = 5, chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
+        atol: float = 1e-6, progress=None) -> Fit:
+    """Fit a reflectance model per sample to an OLAT capture.
+
+    ``model``: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",
+    "ggx_aniso") or "auto" (the ladder: every rung is fitted on all but every
+    ``holdout``-th light, scored on those, and each sample keeps the simplest
+    rung whose held-out mean squared error is within two standard errors of
+    the noise of the best; then it is refitted on every light). ``normals``:
+    also fit the shading normal (photometric-stereo start). ``solver``: "lm"
+    (Levenberg-Marquardt), "gn" (Gauss-Newton), "dogleg" or "bfgs".
+    ``loss``: "cauchy" (scale ``cauchy`` x the sample's RMS radiance) or "l2".
+    ``alpha_floor``: smallest roughness; default :func:`rig_alpha_floor`.
+
+    Samples are solved ``chunk`` at a time (``jax.vmap`` over the chunk), so
+    solver memory is bounded by the chunk (a vmapped solve runs until its
+    slowest sample stops, so small chunks waste fewer steps; 64-256 measured
+    best on 2 CPU cores, ``scripts/bench_fit.py``); each sample gets up to ``rounds *
+    steps_per_round`` steps, later rounds only for samples still unconverged
+    (compacted). ``progress(n)`` reports finished samples (``model="auto"``
+    reports each rung's pass). NaN never leaves: a sample with too few
+    observations gets grey defaults, and one whose solve fails keeps its start;
+    both are flagged in ``Fit.failed``.
+    """
+    V, L, P, C = capture.radiance.shape
+    if surface.num_samples != P:
+        raise ValueError(f"fit: capture has {P} samples but the surface has {surface.num_samples}")
+    if C != 3:
+        raise ValueError(f"fit: expects RGB radiance (C = 3), got C = {C}")
+    if chunk < 1 or rounds < 1 or steps_per_round < 1:
+        raise ValueError("fit: chunk, rounds and steps_per_round must be >= 1")
+    if solver not in SOLVERS:
+        raise ValueError(f"fit: solver must be one of {SOLVERS}, got {solver!r}")
+    if loss not in LOSSES:
+        raise ValueError(f"fit: loss must be one of {LOSSES}, got {loss!r}")
+    if loss == "cauchy" and not cauchy > 0:
+        raise ValueError(f"fit: the Cauchy scale must be > 0, got {cauchy}")
+    if model == "auto" and holdout < 2:
+        raise ValueError(f"fit: holdout must be >= 2 (every holdout-th light is held out), got {holdout}")
+    rungs = _rungs(model)
+    floor = rig_alpha_floor(capture.rig) if alpha_floor is None else float(alpha_floor)
+    if not 0 < floor < 1:
+        raise ValueError(f"fit: alpha_floor must be in (0, 1), got {floor}")
+    # Optimistix's LM mixes its damping dtype with JAX's default float, so
+    # compute in that (float32 unless jax_enable_x64 is on).
+    dt = np.dtype(jnp.result_type(float))
+    # One observation count for every chunk (the largest any sample has,
+    # rounded up) so the solver compiles once.
+    n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
+    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
+    parts = [_observations(capture, surface, s, min(s + chunk, P), n_keep, dt) for s in range(0, P, chunk)]
+    obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts))
+    data = (obs, w, wi, wo, irr)
+    opts = dict(size=_chunk_size(P, chunk), rounds=rounds, steps_per_round=steps_per_round, rtol=rtol, atol=atol,
+                solver=solver, cauchy=float(cauchy) if loss == "cauchy" else None)
+    every = np.arange(P)
+    zero = np.zeros_like(w)
+
+    if len(rungs) == 1:
+        choice = np.full(P, rungs[0], np.int32)
+        fits = {rungs[0]: (every, _fit_rung(data, w, zero, every, Layout(rungs[0], normals, floor), None, opts,
+                                              progress))}
+        heldout = np.zeros(P, dt)
+    else:
+        hmask = (light % holdout == holdout // 2)[..., None].astype(dt) * w
+        train = w - hmask
+        trial = {k: _fit_rung(data, train, hmask, every, Layout(k, normals, floor), None, opts, progress)
+                 for k in rungs}
+        hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, P]
+        n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
+        best = np.min(hm, axis=0)
+        # Noise from the richest rung's training residual; the held-out MSE of
+        # n_h Gaussian residuals has a standard error of s^2 sqrt(2 / n_h).
+        s2 = np.min(np.stack([trial[k]["rms"] ** 2 for k in rungs]), axis=0)
+        tol = 2.0 * s2 * np.sqrt(2.0 / n_h)
+        ok = hm <= (best + tol)[None]
+        choice = np.asarray(rungs, np.int32)[np.argmax(ok, axis=0)]
+        heldout = np.sqrt(hm[np.argmax(ok, axis=0), every]).astype(dt)
+        fits = {}
+        for k in rungs:
+            sel = np.nonzero(choice == k)[0]
+            if len(sel):
+                fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
+                                          None))
+    out = _assemble(fits, choice, P, normals, floor, dt, surface)
+    nobs = n_valid.astype(np.float32)
+    empty = nobs < _MIN_OBSERVATIONS
+    # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
+    out["rho_d"][empty] = 0.5
+    out["rho_s"][empty] = 0.04
+    out["alpha"][empty] = 0.3
+    out["normal"][empty] = np.asarray(surface.normal, dt)[empty]
+    out["tangent"][empty] = np.asarray(surface.tangent, dt)[empty]
+    out["uncertainty"][empty] = 0.0
+    big = np.finfo(np.float32).max
+    for k in ("rho_d", "rho_s", "alpha", "uncertainty"):
+        out[k] = np.nan_to_num(out[k], nan=0.0, posinf=0.0, neginf=0.0)
+    out["residual"] = np.nan_to_num(out["residual"], nan=big, posinf=big)
+    f32 = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    return Fit(rho_d=f32(out["rho_d"]), rho_s=f32(out["rho_s"]), alpha=f32(out["alpha"]), normal=f32(out["normal"]),
+               tangent=f32(out["tangent"]), model=jnp.asarray(choice, jnp.int32), residual=f32(out["residual"]),
+               heldout=f32(np.nan_to_num(heldout)), result=jnp.asarray(out["result"], jnp.int32),
+               steps=jnp.asarray(out["steps"], jnp.int32), observed=jnp.asarray(nobs, jnp.float32),
+               uncertainty=f32(out["uncertainty"]), alpha_floor=floor)
+
+
+def _assemble(fits, choice, P, normals, floor, dt, surface):
+    out = dict(rho_d=np.zeros((P, 3), dt), rho_s=np.zeros((P, 1), dt), alpha=np.zeros((P, 2), dt),
+               normal=np.zeros((P, 3), dt), tangent=np.zeros((P, 3), dt), residual=np.zeros(P, dt),
+               result=np.zeros(P, np.int32), steps=np.zeros(P, np.int32), uncertainty=np.zeros((P, 9), dt))
+    T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
+    for k, (sel, r) in fits.items():
+        lay = Layout(k, normals, floor)
+        p = _physical(r["u"], lay)
+        out["rho_d"][sel] = p["rho_d"]
+        out["rho_s"][sel] = p["rho_s"]
+        out["alpha"][sel] = p["alpha"]
+        # Fitted frame (surface-frame coordinates) to world space.
+        R = np.asarray(jax.vmap(_fit_model.frame)(jnp.asarray(p["normal"]), jnp.asarray(p["phi"])), np.float64)
+        t_l, n_l = R[:, 0], R[:, 2]
+        to_world = lambda v: v[:, 0:1] * T[sel] + v[:, 1:2] * B[sel] + v[:, 2:3] * N[sel]  # noqa: E731
+        out["normal"][sel] = to_world(n_l)
+        out["tangent"][sel] = to_world(t_l)
+        out["residual"][sel] = r["rms"]
+        out["result"][sel] = r["code"]
+        out["steps"][sel] = r["steps"]
+        out["uncertainty"][np.ix_(sel, _union_index(lay))] = r["sigma"]
+    return out
+
+
+def _observations(capture, surface, s, e, n_keep, dt):
+    """Per-sample observation arrays [e - s, n_keep, ...] for samples s..e:
+    radiance, weights (1 valid / 0 padding), wi, wo (local), irradiance and
+    the light index of each observation."""
+    sub = surface.subset(np.arange(s, e))
+    obs_v, w_v, wi_v, wo_v, irr_v, li_v = [], [], [], [], [], []
+    L = capture.rig.num_lights
+    for v, cam in enumerate(capture.cameras):
+        wi, wo, irr = stage.shading_directions(sub, capture.rig, cam)
+        obs_v.append(np.swapaxes(np.asarray(capture.radiance[v, :, s:e], np.float32), 0, 1))
+        w_v.append(np.swapaxes(np.asarray(capture.mask[v, :, s:e]), 0, 1))
+        wi_v.append(np.swapaxes(np.asarray(wi), 0, 1))
+        wo_v.append(np.broadcast_to(np.asarray(wo)[:, None], wi_v[-1].shape))
+        irr_v.append(np.swapaxes(np.asarray(irr), 0, 1))
+        li_v.append(np.broadcast_to(np.arange(L)[None], (e - s, L)))
+    cat = lambda xs: np.concatenate(xs, axis=1)  # noqa: E731  [Pc, V*L, ...]
+    obs, wmask, wi, wo, irr, li = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v), cat(li_v)
+    # Keep only valid observations (valid first, then padding): typically
+    # half of a rig's lights are behind a sample.
+    order = np.argsort(~wmask, axis=1, kind="stable")[:, :n_keep]
+    if order.shape[1] < n_keep:  # fewer observations than the rounded-up count: pad with invalid ones
+        order = np.concatenate([order, np.repeat(order[:, -1:], n_keep - order.shape[1], axis=1)], axis=1)
+    take = lambda a: np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)  # noqa: E731
+    obs, wm, wi, wo, irr, li = take(obs), take(wmask), take(wi), take(wo), take(irr), take(li)
+    wm[:, wmask.shape[1]:] = False  # the repeated padding columns, if any
+    w = np.broadcast_to(wm[..., None], obs.shape).astype(dt)
+    return obs.astype(dt), w, wi.astype(dt), wo.astype(dt), irr.astype(dt), li

@@ -1,0 +1,17 @@
+"""Preview images: tone mapping (exposure, Reinhard / filmic curves), the sRGB
+transfer, quantisation to 8/16 bits, resampling, and texture-space previews
+(texture lookups seen through a camera, gap dilation)."""
+
+from ._ops import resize_image as resize_image
+from ._preview import dilate as dilate
+from ._preview import sample_texture as sample_texture
+from ._preview import texture_view as texture_view
+from ._tonemap import CURVES as CURVES
+from ._tonemap import srgb_decode as srgb_decode
+from ._tonemap import srgb_encode as srgb_encode
+from ._tonemap import to_uint8 as to_uint8
+from ._tonemap import to_uint16 as to_uint16
+from ._tonemap import tonemap as tonemap
+
+__all__ = ["CURVES", "dilate", "resize_image", "sample_texture", "srgb_decode", "srgb_encode", "texture_view",
+           "to_uint8", "to_uint16", "tonemap"]

@@ -1,0 +1,377 @@
+"""Capture folders: one OpenEXR per view and light, plus ``rig.json``,
+``cameras.json`` and ``capture.json``.
+
+Layout (format version 1)::
+
+    folder/capture.json     {"format": "relight-capture", "version": 1,
+                             "n_views": V, "n_lights": L, "sample_shape": [H, W],
+                             "channels": ["R", "G", "B"], "half": false,
+                             "has_valid": true, "files": "views/v{view:03d}/l{light:03d}.exr",
+                             "metadata": {...}}           (exposure, noise, units, ...)
+    folder/rig.json         {"directions" | "positions": [[x, y, z], ...] (L rows),
+                             "intensities": [[r, g, b], ...] (L rows), ...}  any extra keys kept
+    folder/cameras.json     [{"name": ..., ...}, ...]    (V entries; free-form dicts)
+    folder/views/v000/l000.exr ...                       channels R, G, B [+ "valid"]
+
+Each EXR holds one view under one light: ``[H, W]`` per channel with
+``H * W = P`` samples (an image-space capture uses its image size; a
+texel-space capture its texel grid, or ``[1, P]``). An optional ``valid``
+channel (half, 0 or 1) is the validity mask (not shadowed / occluded /
+saturated). Each EXR's header also records its view and light index, so a
+misplaced file is detected.
+
+The whole folder is written under a temporary name next to the target and
+renamed into place, so a crash never leaves a half-written capture (an
+existing capture at the target is replaced only once the new one is complete).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import ImageFormatError, check_radiance
+from ._exr import read_exr_channels, write_exr_channels
+
+__all__ = ["CaptureData", "CaptureReader", "open_capture", "read_capture", "write_capture"]
+
+_FORMAT = "relight-capture"
+_VERSION = 1
+_FILES = "views/v{view:03d}/l{light:03d}.exr"
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureData:
+    """A capture as plain numpy arrays and dicts (adapt to ``stage.Capture``).
+
+    Attributes:
+        radiance: ``[V, L, P, C]`` float32 (or float16 if stored as half and read
+            with ``dtype=None``), in the capture's radiance units.
+        valid: ``[V, L, P]`` bool validity mask, or None if the capture has none.
+        rig: the contents of ``rig.json`` (``directions`` or ``positions``
+            ``[L, 3]`` and ``intensities`` ``[L, C]`` as numpy arrays).
+        cameras: the contents of ``cameras.json`` (one dict per view).
+        metadata: ``capture.json``'s ``metadata`` (exposure, noise, units...).
+        sample_shape: ``(H, W)`` of each stored image, ``H * W = P``.
+        lights: indices of the lights loaded (all by default).
+        views: indices of the views loaded.
+    """
+
+    radiance: np.ndarray
+    valid: np.ndarray | None
+    rig: dict
+    cameras: list
+    metadata: dict
+    sample_shape: tuple[int, int]
+    lights: tuple[int, ...]
+    views: tuple[int, ...]
+
+
+def _jsonable(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "__array__"):  # jax arrays
+        return np.asarray(obj).tolist()
+    return obj
+
+
+def _write_json(path: Path, obj) -> None:
+    path.write_text(json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n")
+
+
+def _rig_light_count(rig: Mapping, where) -> int:
+    for key in ("directions", "positions"):
+        if key in rig:
+            arr = np.asarray(rig[key], np.float64)
+            if arr.ndim != 2 or arr.shape[1] != 3:
+                raise ImageFormatError(f"{where}: rig '{key}' must be [L, 3], got shape {arr.shape}")
+            return arr.shape[0]
+    raise ImageFormatError(f"{where}: rig needs 'directions' or 'positions' ([L, 3])")
+
+
+@contextlib.contextmanager
+def _atomic_folder(folder: Path) -> Iterator[Path]:
+    parent = folder.parent if str(folder.parent) else Path(".")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"{folder}: cannot write, folder {parent} does not exist")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=parent))
+    try:
+        yield tmp
+        if folder.exists():
+            if not (folder / "capture.json").is_file():
+                raise FileExistsError(f"{folder}: exists and is not a capture folder; refusing to replace it")
+            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=parent))
+            os.replace(folder, old / "capture")
+            os.replace(tmp, folder)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def write_capture(
+    folder: str | os.PathLike,
+    radiance: np.ndarray,
+    rig: Mapping,
+    cameras: Sequence[Mapping] | None = None,
+    valid: np.ndarray | None = None,
+    metadata: Mapping | None = None,
+    sample_shape: tuple[int, int] | None = None,
+    half: bool = False,
+    channels: Sequence[str] | None = None,
+) -> None:
+    """Write a capture folder (see the module docstring), atomically.
+
+    Args:
+        radiance: ``[V, L, P, C]`` OLAT radiance (finite, non-negative).
+        rig: dict with ``directions`` or ``positions`` ``[L, 3]`` and
+            ``intensities`` ``[L, C]`` (extra keys, e.g. ``solid_angles``, kept).
+        cameras: one JSON-able dict per view (default: ``{"name": "view<i>"}``).
+        valid: optional ``[V, L, P]`` bool mask.
+        metadata: JSON-able dict (exposure, noise model, units...).
+        sample_shape: ``(H, W)`` with ``H * W = P``; default ``(1, P)``.
+        half: store radiance as half floats (halves the size; 11-bit precision).
+        channels: channel names (default R, G, B for C = 3, Y for C = 1).
+    """
+    folder = Path(folder)
+    rad = np.asarray(radiance)
+    if rad.ndim != 4:
+        raise ValueError(f"{folder}: radiance must be [V, L, P, C], got shape {rad.shape}")
+    n_views, n_lights, n_samples, n_ch = rad.shape
+    check_radiance(rad, folder, "capture radiance")
+    if _rig_light_count(rig, folder) != n_lights:
+        raise ValueError(f"{folder}: rig has {_rig_light_count(rig, folder)} lights but radiance has {n_lights}")
+    if "intensities" in rig and np.asarray(rig["intensities"]).shape[0] != n_lights:
+        raise ValueError(f"{folder}: rig intensities have {np.asarray(rig['intensities']).shape[0]} rows, expected {n_lights}")
+    cams = list(cameras) if cameras is not None else [{"name": f"view{v}"} for v in range(n_views)]
+    if len(cams) != n_views:
+        raise ValueError(f"{folder}: {len(cams)} cameras given for {n_views} views")
+    shape = tuple(sample_shape) if sample_shape is not None else (1, n_samples)
+    if len(shape) != 2 or shape[0] * shape[1] != n_samples:
+        raise ValueError(f"{folder}: sample_shape {shape} does not hold {n_samples} samples")
+    names = list(channels) if channels is not None else {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(n_ch)
+    if names is None or len(names) != n_ch or "valid" in names:
+        raise ValueError(f"{folder}: need {n_ch} channel names (not 'valid'), got {names}")
+    if valid is not None:
+        valid = np.asarray(valid, bool)
+        if valid.shape != (n_views, n_lights, n_samples):
+            raise ValueError(f"{folder}: valid mask must be {(n_views, n_lights, n_samples)}, got {valid.shape}")
+    with _atomic_folder(folder) as tmp:
+        for v in range(n_views):
+            for l in range(n_lights):
+                path = tmp / _FILES.format(view=v, light=l)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                chans = {n: rad[v, l, :, i].reshape(shape) for i, n in enumerate(names)}
+                if valid is not None:
+                    chans["valid"] = valid[v, l].reshape(shape).astype(np.float16)
+                header = {"relight.view": v, "relight.light": l}
+                write_exr_channels(path, chans, header=header, half=half)
+        _write_json(tmp / "rig.json", rig)
+        _write_json(tmp / "cameras.json", cams)
+        _write_json(
+            tmp / "capture.json",
+            {
+                "format": _FORMAT,
+                "version": _VERSION,
+                "n_views": n_views,
+                "n_lights": n_lights,
+                "sample_shape": list(shape),
+                "channels": names,
+                "half": bool(half),
+                "has_valid": valid is not None,
+                "files": _FILES,
+                "metadata": dict(metadata or {}),
+            },
+        )
+
+
+def _load_json(path: Path):
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing (a capture folder needs capture.json, rig.json and cameras.json)")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ImageFormatError(f"{path}: invalid JSON ({err})") from None
+
+
+class CaptureReader:
+    """Lazy access to a capture folder: nothing but the JSON files is read until
+    asked, so stacks larger than memory can be streamed light by light or in
+    sample chunks (:meth:`iter_lights`, :meth:`load` with ``samples=``).
+
+    Attributes:
+        folder, n_views, n_lights, n_samples, n_channels, sample_shape,
+        channels, rig, cameras, metadata, has_valid.
+    """
+
+    def __init__(self, folder: str | os.PathLike):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise FileNotFoundError(f"{self.folder}: no such capture folder")
+        info = _load_json(self.folder / "capture.json")
+        where = self.folder / "capture.json"
+        if info.get("format") != _FORMAT:
+            raise ImageFormatError(f"{where}: not a relight capture (format {info.get('format')!r})")
+        if info.get("version", 0) > _VERSION:
+            raise ImageFormatError(f"{where}: format version {info.get('version')} is newer than this reader ({_VERSION})")
+        try:
+            self.n_views = int(info["n_views"])
+            self.n_lights = int(info["n_lights"])
+            self.sample_shape = tuple(int(s) for s in info["sample_shape"])
+            self.channels = list(info["channels"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ImageFormatError(f"{where}: missing or bad field ({err})") from None
+        self.has_valid = bool(info.get("has_valid", False))
+        self.half = bool(info.get("half", False))
+        self.metadata = dict(info.get("metadata", {}))
+        self._files = str(info.get("files", _FILES))
+        self.n_samples = self.sample_shape[0] * self.sample_shape[1]
+        self.n_channels = len(self.channels)
+        rig_path = self.folder / "rig.json"
+        rig = _load_json(rig_path)
+        n_rig = _rig_light_count(rig, rig_path)
+        if n_rig != self.n_lights:
+            raise ImageFormatError(
+                f"{rig_path}: {n_rig} lights in the rig but capture.json declares {self.n_lights} light images per view"
+            )
+        for key in ("directions", "positions", "intensities", "solid_angles"):
+            if key in rig:
+                rig[key] = np.asarray(rig[key], np.float64)
+        if "intensities" in rig and rig["intensities"].shape[0] != self.n_lights:
+            raise ImageFormatError(f"{rig_path}: 'intensities' has {rig['intensities'].shape[0]} rows, expected {self.n_lights}")
+        self.rig = rig
+        cam_path = self.folder / "cameras.json"
+        self.cameras = _load_json(cam_path)
+        if not isinstance(self.cameras, list) or len(self.cameras) != self.n_views:
+            n = len(self.cameras) if isinstance(self.cameras, list) else "no list of"
+            raise ImageFormatError(f"{cam_path}: {n} cameras but capture.json declares {self.n_views} views")
+        missing = [
+            str(self.path(v, l)) for v in range(self.n_views) for l in range(self.n_lights) if not self.path(v, l).is_file()
+        ]
+        if missing:
+            raise ImageFormatError(
+                f"{self.folder}: {len(missing)} light image(s) missing for {self.n_lights} lights in the rig, "
+                f"first: {missing[0]}"
+            )
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        """``(V, L, P, C)``."""
+        return (self.n_views, self.n_lights, self.n_samples, self.n_channels)
+
+    def path(self, view: int, light: int) -> Path:
+        return self.folder / self._files.format(view=view, light=light)
+
+    def read_image(self, view: int, light: int, samples: slice | None = None, dtype=np.float32):
+        """One view under one light: ``([P', C] radiance, [P'] valid or None)``,
+        ``P'`` the samples selected by ``samples`` (a slice of the flattened image).
+
+        Raises ``ImageFormatError`` naming the file on a missing channel, a
+        wrong size, a header from another view/light, NaN or negative radiance.
+        """
+        path = self.path(view, light)
+        chans, header = read_exr_channels(path)
+        missing = [c for c in self.channels + (["valid"] if self.has_valid else []) if c not in chans]
+        if missing:
+            raise ImageFormatError(f"{path}: channel(s) {missing} missing; the file has {sorted(chans)}")
+        first = chans[self.channels[0]]
+        if first.shape != self.sample_shape:
+            raise ImageFormatError(f"{path}: image is {first.shape}, capture.json says {self.sample_shape}")
+        if header.get("relight.view", view) != view or header.get("relight.light", light) != light:
+            raise ImageFormatError(
+                f"{path}: header says view {header.get('relight.view')} light {header.get('relight.light')}, "
+                f"but the file is in the place of view {view} light {light}"
+            )
+        sel = slice(None) if samples is None else samples
+        rad = np.stack([chans[c].reshape(-1)[sel] for c in self.channels], axis=-1)
+        out_dtype = rad.dtype if dtype is None else dtype
+        rad = rad.astype(out_dtype, copy=False)
+        check_radiance(rad, path, "radiance")
+        valid = chans["valid"].reshape(-1)[sel] > 0.5 if self.has_valid else None
+        return rad, valid
+
+    def iter_lights(self, view: int = 0, samples: slice | None = None, dtype=np.float32):
+        """Yield ``(light, radiance [P', C], valid [P'] or None)`` for one view, one
+        file at a time: memory stays at one image whatever the stack size."""
+        for light in range(self.n_lights):
+            rad, valid = self.read_image(view, light, samples, dtype)
+            yield light, rad, valid
+
+    def load(
+        self,
+        views: Sequence[int] | None = None,
+        lights: Sequence[int] | None = None,
+        samples: slice | None = None,
+        dtype=np.float32,
+    ) -> CaptureData:
+        """Load (a subset of) the stack into memory as :class:`CaptureData`.
+
+        ``samples`` selects a contiguous chunk of the flattened samples, so a
+        stack larger than memory can be processed chunk by chunk (each chunk
+        costs one pass over the files). ``dtype=None`` keeps the stored dtype.
+        """
+        vs = tuple(range(self.n_views)) if views is None else tuple(int(v) for v in views)
+        ls = tuple(range(self.n_lights)) if lights is None else tuple(int(l) for l in lights)
+        for v in vs:
+            if not 0 <= v < self.n_views:
+                raise IndexError(f"{self.folder}: view {v} out of range (capture has {self.n_views})")
+        for l in ls:
+            if not 0 <= l < self.n_lights:
+                raise IndexError(f"{self.folder}: light {l} out of range (capture has {self.n_lights})")
+        n_sel = len(range(*(samples or slice(None)).indices(self.n_samples)))
+        radiance = valid = None
+        for i, v in enumerate(vs):
+            for j, l in enumerate(ls):
+                rad, val = self.read_image(v, l, samples, dtype)
+                if radiance is None:
+                    radiance = np.empty((len(vs), len(ls), n_sel, self.n_channels), rad.dtype)
+                    valid = np.empty((len(vs), len(ls), n_sel), bool) if self.has_valid else None
+                radiance[i, j] = rad
+                if valid is not None:
+                    valid[i, j] = val
+        rig = dict(self.rig)
+        for key in ("directions", "positions", "intensities", "solid_angles"):
+            if key in rig and len(rig[key]) == self.n_lights:
+                rig[key] = rig[key][list(ls)]
+        return CaptureData(
+            radiance=radiance,
+            valid=valid,
+            rig=rig,
+            cameras=[self.cameras[v] for v in vs],
+            metadata=self.metadata,
+            sample_shape=self.sample_shape,
+            lights=ls,
+            views=vs,
+        )
+
+
+def open_capture(folder: str | os.PathLike) -> CaptureReader:
+    """Open a capture folder lazily (validates the JSON files and that every
+    light image exists; reads no pixels)."""
+    return CaptureReader(folder)
+
+
+def read_capture(
+    folder: str | os.PathLike,
+    views: Sequence[int] | None = None,
+    lights: Sequence[int] | None = None,
+    dtype=np.float32,
+) -> CaptureData:
+    """Read a whole capture folder (or the chosen views/lights) into memory."""
+    return CaptureReader(folder).load(views, lights, dtype=dtype)

@@ -1,0 +1,334 @@
+"""Fitted material maps as an OpenEXR texture set that DCC tools and renderers load.
+
+Layout (format ``relight-maps``, version 1), all images ``[H, W]`` on the
+surface's texel grid (row 0 at v = 1, the usual image orientation), linear float:
+
+==================== =========================== ==============================================
+file                 channels                    meaning
+==================== =========================== ==============================================
+albedo.exr           R, G, B                     diffuse albedo rho_d (linear, 0..1)
+specular.exr         Y                           specular albedo rho_s (Schlick F0 on the GGX rungs)
+roughness.exr        alpha_x, alpha_y, Y         GGX alpha along the tangent / bitangent;
+                                                 Y = sqrt(alpha_x alpha_y) for one-channel tools
+normal.exr           R, G, B                     tangent-space normal, encoded 0.5 n + 0.5
+                                                 (OpenGL/MikkTSpace-style: +Y along the bitangent)
+                     world.R, world.G, world.B   world-space unit normal, raw (-1..1)
+                     tangent.R, tangent.G, .B    world-space unit tangent of the fitted frame, raw
+mean_free_path.exr   R, G, B                     diffuse mean free path, mm (Burley ``dmfp``)
+model.exr            Y                           model-ladder index (see maps.json ``models``)
+coverage.exr         Y                           1 on texels that hold a fitted sample, 0 in the gutter
+maps.json            --                          format, version, resolution, surface (mesh path,
+                                                 scale, centring, units), the model legend, the
+                                                 file table and free-form metadata
+==================== =========================== ==============================================
+
+The tangent-space normal is expressed in the surface's own shading frame at
+each texel (``stage.texel_samples``: t = dP/du made orthogonal to the
+interpolated normal, b = n x t), the frame renderers build from the mesh's UVs.
+
+Texels outside the UV charts are filled from their valid neighbours for
+``gutter`` rings (the usual bake padding, ``relight._preview.dilate``; nearest
+value for the model index, renormalised for normals) so a bilinear lookup at
+a chart border does not blend in the empty background. ``coverage.exr``
+tells fitted texels from padding.
+
+Every file is written atomically (``relight.io.write_exr``); ``maps.json`` is
+written last. Reading validates everything and raises ``FileNotFoundError``
+or ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_write_bytes
+from ._errors import ImageFormatError
+from ._exr import read_exr_channels, write_exr_channels
+from ..materials._maps import MODELS, MaterialMaps, material_maps
+from ..image._preview import dilate
+
+__all__ = ["TextureSet", "read_maps", "write_maps", "is_map_set"]
+
+FORMAT = "relight-maps"
+VERSION = 1
+# File -> channels, the layout in the module docstring.
+FILES = {
+    "albedo": ("albedo.exr", ("R", "G", "B")),
+    "specular": ("specular.exr", ("Y",)),
+    "roughness": ("roughness.exr", ("alpha_x", "alpha_y", "Y")),
+    "normal": ("normal.exr", ("R", "G", "B", "world.R", "world.G", "world.B", "tangent.R", "tangent.G", "tangent.B")),
+    "mean_free_path": ("mean_free_path.exr", ("R", "G", "B")),
+    "model": ("model.exr", ("Y",)),
+    "coverage": ("coverage.exr", ("Y",)),
+}
+# Rings of gutter texels filled around each chart: enough for bilinear
+# lookups plus one coarser mip level.
+DEFAULT_GUTTER = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class TextureSet:
+    """A texture set in memory: every map ``[H, W, C]`` on the texel grid.
+
+    albedo [H, W, 3], specular [H, W, 1], alpha [H, W, 2], normal (world)
+    [H, W, 3], tangent (world) [H, W, 3], normal_ts (tangent space, decoded to
+    -1..1) [H, W, 3], mfp [H, W, 3] (mm), model [H, W] int32, coverage
+    [H, W] bool; ``info`` holds maps.json."""
+
+    albedo: np.ndarray
+    specular: np.ndarray
+    alpha: np.ndarray
+    normal: np.ndarray
+    tangent: np.ndarray
+    normal_ts: np.ndarray
+    mfp: np.ndarray
+    model: np.ndarray
+    coverage: np.ndarray
+    info: dict
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return tuple(self.coverage.shape)
+
+    @property
+    def surface_info(self) -> dict:
+        return dict(self.info.get("surface", {}))
+
+    def maps(self, surface) -> MaterialMaps:
+        """The maps at ``surface``'s samples (looked up at ``surface.texel_index``)
+        as :class:`relight.MaterialMaps`. The surface must live on this set's
+        texel grid; samples on uncovered (gutter) texels are refused."""
+        if tuple(surface.resolution) != self.resolution:
+            raise ValueError(f"texture set is {self.resolution[0]}x{self.resolution[1]} texels but the surface's "
+                             f"grid is {surface.resolution[0]}x{surface.resolution[1]}")
+        idx = np.asarray(surface.texel_index)
+        flat = lambda a: a.reshape((-1,) + a.shape[2:])[idx]  # noqa: E731
+        if not np.all(flat(self.coverage)):
+            n = int(np.sum(~flat(self.coverage)))
+            raise ValueError(f"{n} surface sample(s) fall on texels the texture set does not cover")
+        return material_maps(surface, flat(self.albedo), flat(self.specular), flat(self.alpha),
+                             normal=flat(self.normal), tangent=flat(self.tangent), mfp=flat(self.mfp),
+                             model=flat(self.model))
+
+
+def is_map_set(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` looks like a texture set (has a maps.json of this format)."""
+    p = Path(folder) / "maps.json"
+    if not p.is_file():
+        return False
+    try:
+        return json.loads(p.read_text()).get("format") == FORMAT
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return False
+
+
+def _dilate_nearest(values: np.ndarray, valid: np.ndarray, iterations: int) -> np.ndarray:
+    """Gutter fill for categorical maps: copy a valid 4-neighbour (no averaging)."""
+    out = np.array(values, copy=True)
+    ok = np.array(valid, bool, copy=True)
+    for _ in range(iterations):
+        grow = np.zeros_like(ok)
+        for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            src_ok = np.roll(ok, (dy, dx), axis=(0, 1))
+            take = ~ok & ~grow & src_ok
+            out[take] = np.roll(out, (dy, dx), axis=(0, 1))[take]
+            grow |= take
+        ok |= grow
+    return out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 1e-12, v / np.where(n > 1e-12, n, 1.0), np.array([0.0, 0.0, 1.0], v.dtype))
+
+
+def _jsonable(x):
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, np.generic):
+        return x.item()
+    if hasattr(x, "__array__"):
+        return np.asarray(x).tolist()
+    return x
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, lambda fh: fh.write(text.encode()))
+
+
+def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
+               surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> Path:
+    """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``.
+
+    Args:
+        folder: created if missing; existing files of the set are replaced
+            (each atomically; maps.json last).
+        maps: :class:`relight.MaterialMaps` with one row per surface sample.
+        surface: the ``stage.Surface`` the maps are over (texel grid, frame).
+        metadata: JSON-able extras stored under maps.json ``metadata``.
+        surface_info: how to rebuild the surface (mesh path, scale, centring),
+            stored under maps.json ``surface``; resolution is added.
+        gutter: rings of padding texels filled around each UV chart.
+
+    Returns the folder.
+    """
+    folder = Path(folder)
+    P = surface.num_samples
+    if maps.num_samples != P:
+        raise ValueError(f"{folder}: maps hold {maps.num_samples} samples but the surface has {P}")
+    h, w = surface.resolution
+    idx = np.asarray(surface.texel_index)
+    if len(np.unique(idx)) != len(idx):
+        raise ValueError(f"{folder}: surface has several samples on one texel; a texture set needs one per texel")
+    folder.mkdir(parents=True, exist_ok=True)
+    valid = np.zeros((h, w), bool)
+    valid.reshape(-1)[idx] = True
+
+    def tex(x, fill=0.0):
+        x = np.asarray(x, np.float32)
+        return surface.to_texture(x.reshape(P, -1), fill=fill)
+
+    n_world = _unit(np.asarray(maps.normal, np.float64))
+    t_world = np.asarray(maps.tangent, np.float64)
+    t_world = _unit(t_world - np.sum(t_world * n_world, -1, keepdims=True) * n_world)
+    # Tangent-space normal in the surface's own frame (t, b, n).
+    sn, st, sb = (np.asarray(a, np.float64) for a in (surface.normal, surface.tangent, surface.bitangent))
+    n_ts = np.stack([np.sum(n_world * st, -1), np.sum(n_world * sb, -1), np.sum(n_world * sn, -1)], -1)
+    alpha = np.asarray(maps.alpha, np.float64)
+
+    pad = lambda t: dilate(t, valid, gutter)  # noqa: E731
+    renorm = lambda t: _unit(pad(t).astype(np.float64)).astype(np.float32)  # noqa: E731
+    albedo = pad(tex(maps.rho_d))
+    spec = pad(tex(maps.rho_s))
+    alpha_t = pad(tex(alpha, fill=1.0))
+    nts_t = renorm(tex(n_ts))
+    nw_t = renorm(tex(n_world))
+    tw_t = renorm(tex(t_world))
+    mfp = pad(tex(maps.mfp))
+    model = _dilate_nearest(surface.to_texture(np.asarray(maps.model, np.int32)), valid, gutter)
+    iso = np.sqrt(alpha_t[..., 0] * alpha_t[..., 1])
+    enc = 0.5 * nts_t + 0.5
+
+    images = {
+        "albedo": {c: albedo[..., i] for i, c in enumerate("RGB")},
+        "specular": {"Y": spec[..., 0]},
+        "roughness": {"alpha_x": alpha_t[..., 0], "alpha_y": alpha_t[..., 1], "Y": iso},
+        "normal": {**{c: enc[..., i] for i, c in enumerate("RGB")},
+                   **{f"world.{c}": nw_t[..., i] for i, c in enumerate("RGB")},
+                   **{f"tangent.{c}": tw_t[..., i] for i, c in enumerate("RGB")}},
+        "mean_free_path": {c: mfp[..., i] for i, c in enumerate("RGB")},
+        "model": {"Y": model.astype(np.float32)},
+        "coverage": {"Y": valid.astype(np.float32)},
+    }
+    for key, (name, _) in FILES.items():
+        write_exr_channels(folder / name, images[key], header={"relight.map": key})
+    info = {
+        "format": FORMAT,
+        "version": VERSION,
+        "resolution": [int(h), int(w)],
+        "samples": int(P),
+        "gutter": int(gutter),
+        "models": {str(i): m for i, m in enumerate(MODELS)},
+        "units": {"albedo": "1 (linear)", "specular": "1 (Schlick F0)", "roughness": "GGX alpha",
+                  "mean_free_path": "mm", "normal": "unit vectors; R,G,B tangent space encoded 0.5 n + 0.5",
+                  "lengths": "mm"},
+        "files": {key: {"file": name, "channels": list(ch)} for key, (name, ch) in FILES.items()},
+        "surface": {**_jsonable(dict(surface_info or {})), "resolution": [int(h), int(w)]},
+        "metadata": _jsonable(dict(metadata or {})),
+        "writer": f"relight {_version()}",
+    }
+    write_text_atomic(folder / "maps.json", json.dumps(info, indent=2, allow_nan=False) + "\n")
+    return folder
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("lightstage-relight")
+    except Exception:  # not installed: running from a checkout
+        return "unknown"
+
+
+def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
+    """Read and validate a texture set written by :func:`write_maps`.
+
+    Returns ``(textures, surface_info)``: a :class:`TextureSet` and maps.json's
+    ``surface`` entry (mesh path, scale, centring, resolution) from which the
+    caller rebuilds the texel surface (``TextureSet.maps(surface)`` then gives
+    :class:`relight.MaterialMaps`).
+
+    Raises FileNotFoundError (folder, maps.json or a map missing) or
+    ImageFormatError (corrupt EXR, missing channel, wrong resolution, bad
+    maps.json), each naming the file.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such map-set folder")
+    meta_path = folder / "maps.json"
+    if not meta_path.is_file():
+        raise FileNotFoundError(f"{meta_path}: missing (a map-set folder needs maps.json and the EXR maps)")
+    try:
+        info = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ImageFormatError(f"{meta_path}: invalid JSON ({err})") from None
+    fmt = info.get("format") if isinstance(info, dict) else None
+    if fmt != FORMAT:
+        raise ImageFormatError(f"{meta_path}: not a relight map set (format {fmt!r}, expected {FORMAT!r})")
+    if int(info.get("version", 0)) > VERSION:
+        raise ImageFormatError(f"{meta_path}: format version {info.get('version')} is newer than this reader ({VERSION})")
+    try:
+        res = tuple(int(r) for r in info["resolution"])
+        assert len(res) == 2 and min(res) > 0
+    except (KeyError, TypeError, ValueError, AssertionError):
+        raise ImageFormatError(f"{meta_path}: field 'resolution' must be [H, W] with positive sizes, "
+                               f"got {info.get('resolution')!r}") from None
+    chans = {}
+    for key, (name, names) in FILES.items():
+        path = folder / name
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: missing from the map set ({key} map)")
+        c, _ = read_exr_channels(path)
+        missing = [n for n in names if n not in c]
+        if missing:
+            raise ImageFormatError(f"{path}: channel(s) {missing} missing; the file has {sorted(c)}")
+        for n in names:
+            if c[n].shape != res:
+                raise ImageFormatError(f"{path}: map is {c[n].shape[0]}x{c[n].shape[1]} texels but maps.json says "
+                                       f"{res[0]}x{res[1]}")
+            if not np.all(np.isfinite(c[n])):
+                raise ImageFormatError(f"{path}: channel {n!r} has NaN or Inf values")
+        chans[key] = {n: np.asarray(c[n], np.float32) for n in names}
+    st = lambda key, names: np.stack([chans[key][n] for n in names], -1)  # noqa: E731
+    coverage = chans["coverage"]["Y"] > 0.5
+    if not coverage.any():
+        raise ImageFormatError(f"{folder / 'coverage.exr'}: covers no texel")
+    model = np.rint(chans["model"]["Y"]).astype(np.int32)
+    if np.any((model[coverage] < 0) | (model[coverage] >= len(MODELS))):
+        raise ImageFormatError(f"{folder / 'model.exr'}: model indices must be in 0..{len(MODELS) - 1} ({', '.join(MODELS)})")
+    alpha = st("roughness", ("alpha_x", "alpha_y"))
+    if np.any(alpha[coverage] <= 0):
+        raise ImageFormatError(f"{folder / 'roughness.exr'}: alpha must be > 0 on covered texels")
+    tex = TextureSet(
+        albedo=st("albedo", "RGB"),
+        specular=st("specular", ("Y",)),
+        alpha=alpha,
+        normal=st("normal", ("world.R", "world.G", "world.B")),
+        tangent=st("normal", ("tangent.R", "tangent.G", "tangent.B")),
+        normal_ts=2.0 * st("normal", "RGB") - 1.0,
+        mfp=st("mean_free_path", "RGB"),
+        model=model,
+        coverage=coverage,
+        info=info,
+    )
+    return tex, tex.surface_info

@@ -1,0 +1,267 @@
+"""Novel views and turntables rendered from texel-space material maps.
+
+A view casts one primary ray per sub-pixel (``stage.image_samples``), looks the
+texel-space maps up at the hit's uv (bilinear in texture space, after
+dilating the charts by two texels so lookups at chart borders do not blend in
+empty texels; the model map by nearest texel), shades the hits with
+:func:`relight.render.render_samples`' machinery and box-filters the
+``supersample`` x ``supersample`` sub-pixels down (anti-aliasing). Rays that
+miss the mesh see the environment (bilinear lookup), or black.
+
+The subsurface term's radiant exitance M does not depend on the view: it is
+computed once on the texel samples (where the diffusion operator couples
+neighbours over the whole surface, not only the visible pixels) and looked up
+per pixel like a map.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Iterator
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import stage
+
+from . import _methods as rs
+from ..envmap._latlong import EnvMap, rotation_matrix, sample_latlong
+from ..materials._maps import SUBSURFACE, MaterialMaps
+from ..image._preview import dilate, sample_texture
+
+__all__ = ["render_view", "turntable"]
+
+_DILATE_TEXELS = 2
+
+
+@dataclasses.dataclass
+class _View:
+    """Everything about one camera view that does not depend on the lighting."""
+
+    surface: stage.Surface       # pixel samples (hits only)
+    maps: MaterialMaps           # maps at the hits
+    hit: np.ndarray              # [H s, W s] bool
+    ray_dirs: np.ndarray         # [H s, W s, 3] primary ray directions (for the background)
+    wo: Any                      # [P, 3] toward the camera
+    uv: np.ndarray               # [P, 2]
+    geo: Any = None              # rs.Geometry of the pixel samples
+
+
+def _textures(maps: MaterialMaps, texel_surface: stage.Surface) -> dict[str, np.ndarray]:
+    tex = {}
+    valid = np.zeros(texel_surface.resolution, bool).ravel()
+    valid[np.asarray(texel_surface.texel_index)] = True
+    valid = valid.reshape(texel_surface.resolution)
+    for name in ("rho_d", "rho_s", "alpha", "normal", "tangent", "mfp"):
+        t = texel_surface.to_texture(np.asarray(getattr(maps, name), np.float32))
+        tex[name] = dilate(t, valid, _DILATE_TEXELS)
+    model = texel_surface.to_texture(np.asarray(maps.model, np.float32)[:, None])
+    tex["model"] = dilate(model, valid, _DILATE_TEXELS)
+    return tex
+
+
+def _nearest(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    h, w = texture.shape[:2]
+    x = np.clip(np.floor(uv[..., 0] * w), 0, w - 1).astype(int)
+    y = np.clip(np.floor((1 - uv[..., 1]) * h), 0, h - 1).astype(int)
+    return texture[y, x]
+
+
+def _lookup_maps(tex: dict, uv: np.ndarray, surface: stage.Surface, dt) -> MaterialMaps:
+    look = {k: sample_texture(v, uv) for k, v in tex.items() if k != "model"}
+    n = look["normal"]
+    bad = np.linalg.norm(n, axis=1) < 1e-6
+    n = np.where(bad[:, None], np.asarray(surface.normal), n)  # outside every chart: the geometric normal
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    tg = look["tangent"]
+    tg = tg - np.sum(tg * n, 1, keepdims=True) * n
+    bad = np.linalg.norm(tg, axis=1) < 1e-6
+    tg = np.where(bad[:, None], np.asarray(surface.tangent), tg)
+    tg = tg / np.linalg.norm(tg, axis=1, keepdims=True)
+    model = np.rint(_nearest(tex["model"], uv)[:, 0]).astype(np.int32)
+    alpha = np.maximum(look["alpha"], 1e-4)  # brdf.ALPHA_MIN: bilinear blends never reach 0, but be safe
+    j = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    return MaterialMaps(j(np.maximum(look["rho_d"], 0)), j(np.maximum(look["rho_s"], 0)), j(alpha), j(n), j(tg),
+                        j(np.maximum(look["mfp"], 0)), jnp.asarray(model))
+
+
+def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt) -> _View:
+    s = int(supersample)
+    hit, face, bary, _ = stage.primary_hits(mesh, camera, s)
+    h, w = hit.shape
+    ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")
+    _, d = camera.rays(jnp.asarray(np.stack([xs, ys], -1).reshape(-1, 2)))
+    ray_dirs = np.broadcast_to(np.asarray(d, np.float64), (h * w, 3)).reshape(h, w, 3)
+    if not np.any(hit):
+        return _View(None, None, hit, ray_dirs, None, None)
+    surf = stage.image_samples(mesh, camera, s)
+    uv = np.asarray(surf.uv, np.float64)
+    maps = _lookup_maps(tex, uv, surf, dt)
+    wo = camera.view_directions(jnp.asarray(surf.position, dt))
+    return _View(surf, maps, hit, ray_dirs, wo, uv)
+
+
+def _check_view_args(maps, texel_surface, mesh, camera, env, supersample):
+    rs.check_inputs(maps, texel_surface, env)
+    if not isinstance(mesh, stage.Mesh):
+        raise ValueError(f"mesh must be a stage.Mesh, got {type(mesh).__name__}")
+    if mesh.uv is None:
+        raise ValueError(f"mesh '{mesh.name}' has no UV coordinates: the texel-space maps cannot be looked up")
+    if not isinstance(camera, stage.Camera):
+        raise ValueError(f"camera must be a stage.Camera, got {type(camera).__name__}")
+    if not isinstance(supersample, (int, np.integer)) or isinstance(supersample, bool) or supersample < 1:
+        raise ValueError(f"supersample must be an integer >= 1, got {supersample!r}")
+
+
+class _Renderer:
+    """Shared state of render_view / turntable: lighting (env-dependent),
+    texel-space textures and, for subsurface maps, the texel-space geometry."""
+
+    def __init__(self, maps, texel_surface, mesh, env, method, settings, progress):
+        self.s = rs._settings(method, settings)
+        self.dt = self.s["dtype"]
+        self.maps, self.texel_surface, self.mesh, self.env = maps, texel_surface, mesh, env
+        self.progress = progress or (lambda msg: None)
+        self.progress("lighting")
+        self.lt = rs.prepare_lighting(env, method, self.s)
+        self.tex = _textures(maps, texel_surface)
+        model = np.asarray(maps.model)
+        self.has_sss = bool(np.any(model == SUBSURFACE))
+        self.tex_geo = None
+        self.op = None
+
+    def view(self, camera, supersample) -> _View:
+        self.progress("primary rays and maps")
+        v = _view(self.tex, self.mesh, camera, supersample, self.dt)
+        if v.surface is not None:
+            self.progress("visibility")
+            v.geo = rs.prepare_geometry(self.lt, v.maps, v.surface, self.mesh)
+        return v
+
+    def exitance_texture(self, rotation, key):
+        """Subsurface exitance M on the texel grid [H, W, C] (None without subsurface samples)."""
+        if not self.has_sss:
+            return None
+        self.progress("subsurface (texel space)")
+        if self.tex_geo is None:
+            self.tex_geo = rs.prepare_geometry(self.lt, self.maps, self.texel_surface, self.mesh)
+            self.op = self.s["operator"] or rs.build_operator(self.maps, self.texel_surface)
+        lt = self.lt
+        if self.s["operator"] is None:
+            lt = dataclasses.replace(lt, settings={**lt.settings, "operator": self.op})
+        wo = self.maps.frame(self.texel_surface).normal
+        _, M = rs.shade(lt, self.tex_geo, self.maps, self.texel_surface, wo, rotation=rotation, key=key)
+        valid = np.zeros(self.texel_surface.resolution, bool).ravel()
+        valid[np.asarray(self.texel_surface.texel_index)] = True
+        tex = self.texel_surface.to_texture(np.asarray(M, np.float32))
+        return dilate(tex, valid.reshape(self.texel_surface.resolution), _DILATE_TEXELS)
+
+    def image(self, v: _View, camera, supersample, background, rotation, key, m_tex) -> np.ndarray:
+        s = int(supersample)
+        hs, ws = v.hit.shape
+        C = self.env.radiance.shape[-1]
+        img = np.zeros((hs * ws, C), np.float32)
+        if background:
+            d = v.ray_dirs.reshape(-1, 3)
+            if rotation is not None:
+                d = d @ np.asarray(rotation, np.float64)  # R^T d
+            img[:] = np.asarray(sample_latlong(self.env.radiance, jnp.asarray(d, self.dt)), np.float32)
+        if v.surface is not None:
+            self.progress("shading")
+            sss = None if m_tex is None else jnp.asarray(sample_texture(m_tex, v.uv), self.dt)
+            rad, _ = rs.shade(self.lt, v.geo, v.maps, v.surface, v.wo, rotation=rotation, key=key, sss_exitance=sss)
+            img[np.asarray(v.surface.texel_index)] = np.asarray(rad, np.float32)
+        img = img.reshape(camera.height, s, camera.width, s, C).mean(axis=(1, 3))
+        return np.where(np.isfinite(img), img, 0.0).astype(np.float32)
+
+
+def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
+                *, method: str = "rig", supersample: int = 2, background: bool = True, key=None,
+                progress: Callable[[str], None] | None = None, **settings) -> np.ndarray:
+    """Render the texel-space ``maps`` (over ``texel_surface``, from
+    ``stage.texel_samples(mesh, ...)``) on ``mesh`` as ``camera`` sees it under
+    ``env``: an image [H, W, 3] float32 of radiance (the environment's units).
+
+    Primary visibility by ray casting (``stage.image_samples`` on a
+    ``supersample`` x ``supersample`` sub-pixel grid), maps bilinear in texture
+    space at the hits' uv, shading by ``method`` (see
+    :func:`relight.render.render_samples` for the methods and ``settings``)
+    with shadows cast by ``mesh``, box filter down to the camera's pixels.
+    ``background``: rays that miss see the (rotated) environment, else 0.
+    ``progress(stage_name)`` is called as the work advances. Visibility is
+    per pixel sample: cost grows with (W H supersample^2) x directions for
+    "rig"/"dense" and x samples for "reference".
+    """
+    _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
+    r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)
+    rotation = r.s["rotation"]
+    v = r.view(camera, supersample)
+    m_tex = r.exitance_texture(rotation, key)
+    return r.image(v, camera, supersample, background, rotation, key, m_tex)
+
+
+def orbit_camera(camera: stage.Camera, angle: float, axis=(0.0, 1.0, 0.0)) -> stage.Camera:
+    """``camera`` moved around the world origin (the rig centre) by ``angle``
+    radians about ``axis``, still looking at the same (rotated) point:
+    R' = R Q^T, t' = t, so its centre becomes Q c."""
+    Q = rotation_matrix(jnp.asarray(axis, jnp.float32), jnp.asarray(angle, jnp.float32))
+    return eqx.tree_at(lambda c: c.R, camera, jnp.asarray(camera.R @ Q.T.astype(camera.R.dtype)))
+
+
+def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
+              *, frames: int = 24, mode: str = "envmap", method: str = "rig", axis=(0.0, 1.0, 0.0),
+              supersample: int = 2, background: bool = True, key=None,
+              progress: Callable[[str], None] | None = None, **settings) -> Iterator[np.ndarray]:
+    """An iterator over ``frames`` images [H, W, 3] of a full turn (frame k at
+    angle 2 pi k / frames about ``axis``, right-handed).
+
+    ``mode="envmap"``: the environment rotates (light from d arrives from
+    R_k d), the camera stays. Cached across frames: primary hits, the maps
+    looked up at the pixels, the per-pixel visibility (rig/dense visibility
+    masks, fast ambient occlusion and bent normals), and the environment's
+    precomputation (dense grid, SH coefficients, prefiltered levels and DFG
+    table, importance-sampling tables); each frame only rotates the lookups
+    (for "rig" it recomputes the light weights from rotated light directions,
+    as ``relight.envmap.rotation_sweep_weights`` does; for "reference" it
+    re-traces its rays; with subsurface samples it recomputes the texel-space
+    exitance).
+
+    ``mode="orbit"``: the camera orbits the rig centre (``orbit_camera``), the
+    environment stays. Cached: the environment's precomputation and the
+    texel-space subsurface exitance (view independent); each frame casts its
+    primary rays, looks the maps up and computes visibility anew.
+
+    Other arguments as :func:`render_view`. Arguments are checked when
+    ``turntable`` is called, not when the first frame is drawn.
+    """
+    _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
+    if mode not in ("envmap", "orbit"):
+        raise ValueError(f"turntable mode must be 'envmap' or 'orbit', got {mode!r}")
+    if not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1:
+        raise ValueError(f"frames must be an integer >= 1, got {frames!r}")
+    if "rotation" in settings:
+        raise ValueError("turntable sets the environment rotation itself; pass no 'rotation' setting")
+    r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)
+    key = jax.random.PRNGKey(0) if key is None else key
+    angles = [2 * math.pi * k / frames for k in range(frames)]
+
+    def envmap_frames():
+        v = r.view(camera, supersample)
+        for k, a in enumerate(angles):
+            rot = np.asarray(rotation_matrix(jnp.asarray(axis, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32),
+                                             jnp.asarray(a)), np.float64)
+            rot = None if k == 0 else rot
+            kk = jax.random.fold_in(key, k)
+            yield r.image(v, camera, supersample, background, rot, kk, r.exitance_texture(rot, kk))
+
+    def orbit_frames():
+        m_tex = r.exitance_texture(None, key)
+        for k, a in enumerate(angles):
+            cam = orbit_camera(camera, a, axis)
+            v = r.view(cam, supersample)
+            yield r.image(v, cam, supersample, background, None, jax.random.fold_in(key, k), m_tex)
+
+    return envmap_frames() if mode == "envmap" else orbit_frames()
