@@ -1,5 +1,13 @@
 """The Beckmann microfacet distribution (Beckmann & Spizzichino 1963; Walter et
-al. 2007), anisotropic, with Smith's exact masking."""
+al. 2007), anisotropic, with Smith's exact masking.
+
+As in ``_ggx.py``, the physics is in free kernels written once on separate
+components (``beckmann_*_xyz(x, y, z, alpha_x, alpha_y)``, for the fitter's
+component-major [3, N] arrays: ``beckmann_d_xyz(*wm, ...)``) with last-axis
+forms (``beckmann_d(wm, ...)``, wm [*batch, 3] -> [*batch, C]) that
+:class:`Beckmann` calls. Roughness is clamped to ALPHA_MIN (gradient 0
+below); ``alpha_y`` None means isotropic.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +23,142 @@ _INV_SQRT_PI = 0.5641895835477563
 # Beyond a = cot(theta)/alpha = 30, erfc(a) and exp(-a^2) are 0 even in float64,
 # so Lambda is exactly 0: clamping there keeps a^2 finite without changing values.
 _A_MAX = 30.0
+
+
+def _s(x, y, alpha_x, alpha_y):
+    # s = alpha-weighted sin(theta) = sqrt(ax^2 x^2 + ay^2 y^2)
+    ax, ay = clamped_alphas(alpha_x, alpha_y)
+    return safe_sqrt((ax * x) ** 2 + (ay * y) ** 2)
+
+
+def beckmann_d_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """Beckmann density of microfacet normals D(wm), in 1/sr, for a unit normal
+    wm = (x, y, z) given as separate components (any broadcastable shapes):
+
+        D(wm) = exp(-((x/ax)^2 + (y/ay)^2) / z^2) / (pi ax ay z^4)
+
+    (Walter et al. 2007, eq. 25, anisotropic form). 0 for z <= 0. Normalised:
+    integral D(wm) cos(theta_m) dwm = 1.
+    """
+    ax, ay = clamped_alphas(alpha_x, alpha_y)
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    # exp(-q/z^2) / z^4 evaluated as one exp: at z ~ 1e-7 the separate factors'
+    # gradients are 0 * inf = NaN in float32, the combined exponent's are finite.
+    expo = -((x / ax) ** 2 + (y / ay) ** 2) / (zs * zs) - 4.0 * jnp.log(zs)
+    return jnp.where(up, jnp.exp(expo) / (jnp.pi * ax * ay), 0.0)
+
+
+def beckmann_lambda_cos_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """cos(theta) Lambda(w) = (s exp(-a^2)/sqrt(pi) - z erfc(a)) / 2 with
+    s = sqrt((ax x)^2 + (ay y)^2) and a = z/s (the exact Smith Lambda of Walter
+    et al. 2007, sec. 5.1, multiplied by z): finite (s/(2 sqrt(pi))) at the
+    horizon; 0 for z <= 0. Unitless."""
+    s = _s(x, y, alpha_x, alpha_y)
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    a = jnp.minimum(safe_div(zs, s, fallback=_A_MAX), _A_MAX)
+    v = 0.5 * (s * jnp.exp(-a * a) * _INV_SQRT_PI - zs * jsp.erfc(a))
+    return jnp.where(up, jnp.maximum(v, 0.0), 0.0)
+
+
+def beckmann_lambda_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """Exact Smith Lambda for Beckmann (Walter et al. 2007, sec. 5.1, before its
+    rational approximation):
+
+        Lambda = (erf(a) - 1) / 2 + exp(-a^2) / (2 a sqrt(pi)),  a = |z| / s = 1 / (alpha tan(theta))
+
+    Unitless, >= 0; depends on |z|; the largest finite number of the dtype at the
+    horizon, where it is infinite."""
+    s = _s(x, y, alpha_x, alpha_y)
+    az = jnp.abs(z)
+    a = jnp.minimum(safe_div(az, s, fallback=_A_MAX), _A_MAX)
+    big = jnp.finfo(jnp.result_type(s)).max
+    # (exp(-a^2)/(a sqrt(pi)) - erfc(a)) / 2, with the 1/a written as s/|z|
+    v = 0.5 * (safe_div(s, az, fallback=big) * jnp.exp(-a * a) * _INV_SQRT_PI - jsp.erfc(a))
+    return jnp.where(az > 0, jnp.maximum(v, 0.0), big)
+
+
+def beckmann_g1_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """Smith masking G1 = 1 / (1 + Lambda) = z / (z + z Lambda) for Beckmann
+    (Walter et al. 2007, sec. 5.1, with the exact Lambda); in [0, 1], 0 for z <= 0."""
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    return jnp.where(up, zs / (zs + beckmann_lambda_cos_xyz(x, y, z, alpha_x, alpha_y)), 0.0)
+
+
+def beckmann_g1_over_cos_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """G1(w) / cos(theta) = 1 / (z + z Lambda) for Beckmann: 2 sqrt(pi) / s at the
+    horizon; 0 for z <= 0."""
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    den = zs + beckmann_lambda_cos_xyz(x, y, z, alpha_x, alpha_y)
+    return jnp.where(up, 1.0 / den, 0.0)
+
+
+def beckmann_d(
+    wm: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`beckmann_d_xyz` on last-axis vectors: D(wm) in 1/sr (Walter et al. 2007, eq. 25)."""
+    return beckmann_d_xyz(*split(wm), alpha_x, alpha_y)
+
+
+def beckmann_lambda(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`beckmann_lambda_xyz` on last-axis vectors: the exact Smith Lambda(w)."""
+    return beckmann_lambda_xyz(*split(w), alpha_x, alpha_y)
+
+
+def beckmann_lambda_cos(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`beckmann_lambda_cos_xyz` on last-axis vectors: cos(theta) Lambda(w), 0 below the horizon."""
+    return beckmann_lambda_cos_xyz(*split(w), alpha_x, alpha_y)
+
+
+def beckmann_g1(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`beckmann_g1_xyz` on last-axis vectors: Smith G1(w) = 1 / (1 + Lambda(w))."""
+    return beckmann_g1_xyz(*split(w), alpha_x, alpha_y)
+
+
+def beckmann_g1_over_cos(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`beckmann_g1_over_cos_xyz` on last-axis vectors: G1(w) / cos(theta)."""
+    return beckmann_g1_over_cos_xyz(*split(w), alpha_x, alpha_y)
 
 
 class Beckmann(AbstractMicrofacetDistribution):
@@ -34,57 +178,25 @@ class Beckmann(AbstractMicrofacetDistribution):
     def __init__(self, alpha_x: ArrayLike, alpha_y: ArrayLike | None = None):
         self.alpha_x, self.alpha_y = init_alphas("Beckmann", alpha_x, alpha_y)
 
-    def _sz(self, w):
-        # s = alpha-weighted sin(theta) = sqrt(ax^2 x^2 + ay^2 y^2), and z
-        ax, ay = clamped_alphas(self.alpha_x, self.alpha_y)
-        x, y, z = split(w)
-        return safe_sqrt((ax * x) ** 2 + (ay * y) ** 2), z
-
     def D(self, wm: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """Beckmann density in 1/sr (Walter et al. 2007, eq. 25); 0 for wm_z <= 0."""
-        ax, ay = clamped_alphas(self.alpha_x, self.alpha_y)
-        x, y, z = split(wm)
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        # exp(-q/z^2) / z^4 evaluated as one exp: at z ~ 1e-7 the separate factors'
-        # gradients are 0 * inf = NaN in float32, the combined exponent's are finite.
-        expo = -((x / ax) ** 2 + (y / ay) ** 2) / (zs * zs) - 4.0 * jnp.log(zs)
-        return jnp.where(up, jnp.exp(expo) / (jnp.pi * ax * ay), 0.0)
+        """Beckmann density in 1/sr (Walter et al. 2007, eq. 25); 0 for wm_z <= 0. See :func:`beckmann_d`."""
+        return beckmann_d(wm, self.alpha_x, self.alpha_y)
 
     def lambda_cos(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """cos(theta) Lambda(w) = (s exp(-a^2)/sqrt(pi) - z erfc(a)) / 2 with a = z/s:
-        finite (s/(2 sqrt(pi))) at the horizon; 0 below it."""
-        s, z = self._sz(w)
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        a = jnp.minimum(safe_div(zs, s, fallback=_A_MAX), _A_MAX)
-        v = 0.5 * (s * jnp.exp(-a * a) * _INV_SQRT_PI - zs * jsp.erfc(a))
-        return jnp.where(up, jnp.maximum(v, 0.0), 0.0)
+        """cos(theta) Lambda(w), finite at the horizon; 0 below it. See :func:`beckmann_lambda_cos`."""
+        return beckmann_lambda_cos(w, self.alpha_x, self.alpha_y)
 
     def Lambda(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """Exact Smith Lambda for Beckmann; a very large finite value at the horizon."""
-        s, z = self._sz(w)
-        az = jnp.abs(z)
-        a = jnp.minimum(safe_div(az, s, fallback=_A_MAX), _A_MAX)
-        big = jnp.finfo(jnp.result_type(s)).max
-        # (exp(-a^2)/(a sqrt(pi)) - erfc(a)) / 2, with the 1/a written as s/|z|
-        v = 0.5 * (safe_div(s, az, fallback=big) * jnp.exp(-a * a) * _INV_SQRT_PI - jsp.erfc(a))
-        return jnp.where(az > 0, jnp.maximum(v, 0.0), big)
+        """Exact Smith Lambda; a very large finite value at the horizon. See :func:`beckmann_lambda`."""
+        return beckmann_lambda(w, self.alpha_x, self.alpha_y)
 
     def G1(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """Smith masking 1 / (1 + Lambda) = z / (z + z Lambda); 0 below the horizon."""
-        z = split(w)[2]
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        return jnp.where(up, zs / (zs + self.lambda_cos(w)), 0.0)
+        """Smith masking 1 / (1 + Lambda); 0 below the horizon. See :func:`beckmann_g1`."""
+        return beckmann_g1(w, self.alpha_x, self.alpha_y)
 
     def g1_over_cos(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """G1(w)/cos(theta) = 1 / (z + z Lambda): 2 sqrt(pi) / s at the horizon."""
-        z = split(w)[2]
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        den = zs + self.lambda_cos(w)
-        return jnp.where(up, 1.0 / den, 0.0)
+        """G1(w)/cos(theta) = 1 / (z + z Lambda). See :func:`beckmann_g1_over_cos`."""
+        return beckmann_g1_over_cos(w, self.alpha_x, self.alpha_y)
 
     def sample_wm(self, wo: Float[Array, "*batch 3"], u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
         """A normal with density D(wm) cos(theta_m) (Walter et al. 2007, eqs. 28-29;

@@ -66,7 +66,7 @@ def init_alphas(owner: str, alpha_x: ArrayLike, alpha_y: ArrayLike | None):
     return ax, ay
 
 
-def clamped_alphas(alpha_x: Array, alpha_y: Array | None) -> tuple[Array, Array]:
+def clamped_alphas(alpha_x: ArrayLike, alpha_y: ArrayLike | None) -> tuple[Array, Array]:
     """Roughness clamped to the model's floor ALPHA_MIN (gradient 0 below it)."""
     ax = jnp.maximum(alpha_x, ALPHA_MIN)
     ay = ax if alpha_y is None else jnp.maximum(alpha_y, ALPHA_MIN)

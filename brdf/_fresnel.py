@@ -1,5 +1,7 @@
 """Fresnel reflectance: free functions of cos(theta_d) = dot(wi, wm), and the
-Modules that hold their parameters for ``Microfacet``."""
+Modules that hold their parameters for ``Microfacet``. The free functions are
+elementwise, so they serve the Modules' [*batch, 1] cosines and the fitter's
+component-major [N] rows alike."""
 
 from __future__ import annotations
 
@@ -13,11 +15,14 @@ from ._base import ParamSpec, as_param
 from ._safe import safe_div, safe_sqrt
 
 
-def fresnel_schlick(cos_theta: Float[Array, "*batch 1"], f0: ArrayLike) -> Float[Array, "*batch C"]:
+def schlick(cos_theta: Float[ArrayLike, "*#shape"], f0: Float[ArrayLike, "*#shape"]) -> Float[Array, "*shape"]:
     """Schlick's approximation F = f0 + (1 - f0) (1 - cos)^5 (Schlick 1994,
     "An inexpensive BRDF model for physically-based rendering", eq. 15).
 
-    ``cos_theta`` is clamped to [0, 1]; ``f0`` is the reflectance at normal incidence.
+    ``cos_theta`` = dot(wi, wm), clamped to [0, 1]; ``f0`` is the reflectance at
+    normal incidence (dimensionless, in [0, 1]). Elementwise, so it serves both
+    layouts: [*batch, 1] with f0 [*batch, C] gives [*batch, C]; component-major
+    [N] rows give [N]. Dimensionless; f0 at cos = 1, 1 at cos = 0.
     """
     c = jnp.clip(cos_theta, 0.0, 1.0)
     m = 1.0 - c
@@ -25,12 +30,19 @@ def fresnel_schlick(cos_theta: Float[Array, "*batch 1"], f0: ArrayLike) -> Float
     return f0 + (1.0 - f0) * (m2 * m2 * m)
 
 
-def fresnel_dielectric(cos_theta: Float[Array, "*batch 1"], eta: ArrayLike) -> Float[Array, "*batch C"]:
+# The name the Fresnel family had first; the same function.
+fresnel_schlick = schlick
+
+
+def fresnel_dielectric(
+    cos_theta: Float[ArrayLike, "*#shape"], eta: Float[ArrayLike, "*#shape"]
+) -> Float[Array, "*shape"]:
     """Exact unpolarised Fresnel reflectance of a smooth dielectric interface
     (Born & Wolf §1.5.2; pbrt-v4 §9.3, FrDielectric).
 
     ``eta`` = eta_t / eta_i (> 0), ``cos_theta`` >= 0 on the incident side
     (clamped to [0, 1]). Returns 1 under total internal reflection.
+    Elementwise: [*batch, 1] cosines with [*batch, C] indices give [*batch, C].
     """
     c = jnp.clip(cos_theta, 0.0, 1.0)
     eta = jnp.asarray(eta)
@@ -40,6 +52,21 @@ def fresnel_dielectric(cos_theta: Float[Array, "*batch 1"], eta: ArrayLike) -> F
     r_parl = safe_div(eta * c - cos_t, eta * c + cos_t, fallback=1.0)
     r_perp = safe_div(c - eta * cos_t, c + eta * cos_t, fallback=1.0)
     return jnp.where(tir, 1.0, 0.5 * (r_parl * r_parl + r_perp * r_perp))
+
+
+def fresnel_transmittance(
+    cos_theta: Float[ArrayLike, "*#shape"], eta: Float[ArrayLike, "*#shape"]
+) -> Float[Array, "*shape"]:
+    """Fraction of light transmitted through a smooth dielectric interface,
+    1 - F_dielectric(clip(cos_theta, 0, 1), eta) (energy conservation at the
+    interface; pbrt-v4 §9.3, FrDielectric). Dimensionless, in [0, 1]:
+    1 - ((eta - 1) / (eta + 1))^2 at normal incidence, 0 at grazing and under
+    total internal reflection. ``eta`` = eta_t / eta_i > 0 (skin seen from air:
+    1.4); ``cos_theta`` is the cosine on the incident side. The F_t factors in
+    and out of a diffusion BSSRDF (Jensen et al. 2001, "A practical model for
+    subsurface light transport", S_d). Elementwise (any layout).
+    """
+    return 1.0 - fresnel_dielectric(jnp.clip(cos_theta, 0.0, 1.0), eta)
 
 
 def fresnel_complex(
@@ -115,8 +142,8 @@ class SchlickFresnel(AbstractFresnel):
         self.f0 = as_param("SchlickFresnel", "f0", f0, lower=0.0, upper=1.0)
 
     def __call__(self, cos_theta_d: Float[Array, "*batch 1"]) -> Float[Array, "*batch C"]:
-        """f0 + (1 - f0)(1 - cos)^5 (Schlick 1994)."""
-        return fresnel_schlick(cos_theta_d, self.f0)
+        """f0 + (1 - f0)(1 - cos)^5 (Schlick 1994). See :func:`schlick`."""
+        return schlick(cos_theta_d, self.f0)
 
     def fittable(self) -> dict[str, ParamSpec]:
         """``f0`` in (0, 1) through a sigmoid."""

@@ -1,5 +1,21 @@
 """The GGX / Trowbridge-Reitz microfacet distribution (Walter et al. 2007),
-anisotropic, with Smith masking and visible-normal sampling (Heitz 2018)."""
+anisotropic, with Smith masking and visible-normal sampling (Heitz 2018).
+
+The physics lives in the free kernels below (pbrt-v4's
+``TrowbridgeReitzDistribution`` split into small functions); :class:`GGX`
+holds the roughness and calls them. Each kernel is written once on separate
+components, ``ggx_*_xyz(x, y, z, alpha_x, alpha_y)``, so that it serves both
+layouts:
+
+- last-axis vectors (Modules): ``ggx_d(wm, alpha_x, alpha_y)`` with
+  ``wm`` [*batch, 3] and alphas [*batch, C], [*batch, 1] or 0-d gives [*batch, C];
+- component-major arrays (the fitter): ``ggx_d_xyz(*wm, alpha_x, alpha_y)`` with
+  ``wm`` [3, N] (rows x, y, z) and 0-d or [N] alphas gives [N].
+
+Directions are unit vectors in the shading frame (z = normal). Roughness is
+clamped to ALPHA_MIN (gradient 0 below); ``alpha_y`` None means isotropic
+(alpha_y = alpha_x).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +25,145 @@ from jaxtyping import Array, ArrayLike, Float
 from ._base import ParamSpec
 from ._distribution import AbstractMicrofacetDistribution, alpha_specs, clamped_alphas, init_alphas, split
 from ._safe import dot, safe_div, safe_normalize, safe_sqrt
+
+
+def _a2s2(x, y, alpha_x, alpha_y):
+    # ax^2 x^2 + ay^2 y^2: alpha^2 tan^2(theta) times cos^2(theta)
+    ax, ay = clamped_alphas(alpha_x, alpha_y)
+    return (ax * x) ** 2 + (ay * y) ** 2
+
+
+def ggx_d_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """GGX density of microfacet normals D(wm), in 1/sr, for a unit normal
+    wm = (x, y, z) given as separate components (any broadcastable shapes):
+
+        D(wm) = 1 / (pi ax ay ((x/ax)^2 + (y/ay)^2 + z^2)^2)
+
+    (Walter et al. 2007, "Microfacet models for refraction through rough
+    surfaces", eq. 33; anisotropic form as in Heitz 2014, JCGT 3(2)).
+    0 for z <= 0. Normalised: integral D(wm) cos(theta_m) dwm = 1. Peak
+    1/(pi ax ay) at wm = n (3e7 at ALPHA_MIN, finite in float32).
+    """
+    ax, ay = clamped_alphas(alpha_x, alpha_y)
+    t = (x / ax) ** 2 + (y / ay) ** 2 + z * z
+    return jnp.where(z > 0, safe_div(1.0, jnp.pi * ax * ay * t * t), 0.0)
+
+
+def ggx_lambda_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """Smith's auxiliary function Lambda(w) for GGX (Heitz 2014, "Understanding
+    the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2), eq. 86):
+
+        Lambda(w) = (sqrt(1 + alpha^2 tan^2(theta)) - 1) / 2
+
+    evaluated as a2s2 / (2 |z| (R + |z|)), a2s2 = (ax x)^2 + (ay y)^2 and
+    R = sqrt(a2s2 + z^2), which has no cancellation for smooth surfaces.
+    Unitless, >= 0; depends on |z| (either hemisphere); at the horizon (z = 0),
+    where it is infinite, the largest finite number of the dtype.
+    """
+    a2s2 = _a2s2(x, y, alpha_x, alpha_y)
+    az = jnp.abs(z)
+    r = safe_sqrt(a2s2 + z * z)
+    big = jnp.finfo(jnp.result_type(a2s2)).max
+    return safe_div(a2s2, 2.0 * az * (r + az), fallback=big)
+
+
+def ggx_lambda_cos_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """cos(theta) Lambda(w) = (R - z) / 2 = a2s2 / (2 (R + z)) for GGX (Heitz 2014,
+    eq. 86 multiplied by z): finite at the horizon (alpha sin(theta) / 2 there);
+    0 for z <= 0. The form the height-correlated Smith term needs (Heitz 2014, eq. 99)."""
+    a2s2 = _a2s2(x, y, alpha_x, alpha_y)
+    up = z > 0
+    r = safe_sqrt(a2s2 + z * z)
+    return jnp.where(up, safe_div(a2s2, 2.0 * (r + jnp.where(up, z, 1.0))), 0.0)
+
+
+def ggx_g1_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """Smith masking G1(w) = 1 / (1 + Lambda(w)) = 2 z / (z + R) for GGX
+    (Walter et al. 2007, eq. 34), R = sqrt((ax x)^2 + (ay y)^2 + z^2).
+    Unitless, in [0, 1]; 1 at normal incidence, 0 for z <= 0."""
+    a2s2 = _a2s2(x, y, alpha_x, alpha_y)
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    r = safe_sqrt(a2s2 + zs * zs)
+    return jnp.where(up, 2.0 * zs / (zs + r), 0.0)
+
+
+def ggx_g1_over_cos_xyz(
+    x: Float[ArrayLike, "*#shape"],
+    y: Float[ArrayLike, "*#shape"],
+    z: Float[ArrayLike, "*#shape"],
+    alpha_x: Float[ArrayLike, "*#shape"],
+    alpha_y: Float[ArrayLike, "*#shape"] | None = None,
+) -> Float[Array, "*shape"]:
+    """G1(w) / cos(theta) = 2 / (z + R) for GGX (Walter et al. 2007, eq. 34 divided
+    by z), R = sqrt((ax x)^2 + (ay y)^2 + z^2): finite at the horizon, where it
+    tends to 2 / (alpha sin(theta)). 0 for z <= 0. The separable Smith term of a
+    microfacet BRDF is 0.25 G1/cos(wi) G1/cos(wo) (see smith_g2_separable_over_cos)."""
+    a2s2 = _a2s2(x, y, alpha_x, alpha_y)
+    up = z > 0
+    zs = jnp.where(up, z, 1.0)
+    r = safe_sqrt(a2s2 + zs * zs)
+    return jnp.where(up, 2.0 / (zs + r), 0.0)
+
+
+def ggx_d(
+    wm: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`ggx_d_xyz` on last-axis vectors: D(wm) in 1/sr, [*batch, C]
+    (Walter et al. 2007, eq. 33); 0 for wm_z <= 0."""
+    return ggx_d_xyz(*split(wm), alpha_x, alpha_y)
+
+
+def ggx_lambda(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`ggx_lambda_xyz` on last-axis vectors: Smith Lambda(w) (Heitz 2014, eq. 86)."""
+    return ggx_lambda_xyz(*split(w), alpha_x, alpha_y)
+
+
+def ggx_lambda_cos(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`ggx_lambda_cos_xyz` on last-axis vectors: cos(theta) Lambda(w), 0 below the horizon."""
+    return ggx_lambda_cos_xyz(*split(w), alpha_x, alpha_y)
+
+
+def ggx_g1(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`ggx_g1_xyz` on last-axis vectors: Smith G1(w) (Walter et al. 2007, eq. 34)."""
+    return ggx_g1_xyz(*split(w), alpha_x, alpha_y)
+
+
+def ggx_g1_over_cos(
+    w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
+) -> Float[Array, "*batch C"]:
+    """:func:`ggx_g1_over_cos_xyz` on last-axis vectors: G1(w) / cos(theta) = 2 / (z + R)."""
+    return ggx_g1_over_cos_xyz(*split(w), alpha_x, alpha_y)
 
 
 class GGX(AbstractMicrofacetDistribution):
@@ -26,51 +181,25 @@ class GGX(AbstractMicrofacetDistribution):
     def __init__(self, alpha_x: ArrayLike, alpha_y: ArrayLike | None = None):
         self.alpha_x, self.alpha_y = init_alphas("GGX", alpha_x, alpha_y)
 
-    def _a2s2(self, w):
-        # ax^2 x^2 + ay^2 y^2: alpha^2 tan^2(theta) times cos^2(theta)
-        ax, ay = clamped_alphas(self.alpha_x, self.alpha_y)
-        x, y, z = split(w)
-        return (ax * x) ** 2 + (ay * y) ** 2, z
-
     def D(self, wm: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """GGX density in 1/sr (Walter et al. 2007, eq. 33); 0 for wm_z <= 0."""
-        ax, ay = clamped_alphas(self.alpha_x, self.alpha_y)
-        x, y, z = split(wm)
-        t = (x / ax) ** 2 + (y / ay) ** 2 + z * z
-        return jnp.where(z > 0, safe_div(1.0, jnp.pi * ax * ay * t * t), 0.0)
+        """GGX density in 1/sr (Walter et al. 2007, eq. 33); 0 for wm_z <= 0. See :func:`ggx_d`."""
+        return ggx_d(wm, self.alpha_x, self.alpha_y)
 
     def Lambda(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """Lambda(w) = (sqrt(1 + alpha^2 tan^2) - 1) / 2 (Heitz 2014, eq. 86),
-        written as a2s2 / (2 |z| (R + |z|)) with R = sqrt(a2s2 + z^2) so that it has no
-        cancellation for smooth surfaces."""
-        a2s2, z = self._a2s2(w)
-        az = jnp.abs(z)
-        r = safe_sqrt(a2s2 + z * z)
-        big = jnp.finfo(jnp.result_type(a2s2)).max
-        return safe_div(a2s2, 2.0 * az * (r + az), fallback=big)
+        """Lambda(w) = (sqrt(1 + alpha^2 tan^2) - 1) / 2 (Heitz 2014, eq. 86). See :func:`ggx_lambda`."""
+        return ggx_lambda(w, self.alpha_x, self.alpha_y)
 
     def lambda_cos(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """cos(theta) Lambda(w) = (R - z) / 2 = a2s2 / (2 (R + z)); 0 below the horizon."""
-        a2s2, z = self._a2s2(w)
-        up = z > 0
-        r = safe_sqrt(a2s2 + z * z)
-        return jnp.where(up, safe_div(a2s2, 2.0 * (r + jnp.where(up, z, 1.0))), 0.0)
+        """cos(theta) Lambda(w) = (R - z) / 2; 0 below the horizon. See :func:`ggx_lambda_cos`."""
+        return ggx_lambda_cos(w, self.alpha_x, self.alpha_y)
 
     def G1(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """Smith masking 2z / (z + R) (Walter et al. 2007, eq. 34); 0 below the horizon."""
-        a2s2, z = self._a2s2(w)
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        r = safe_sqrt(a2s2 + zs * zs)
-        return jnp.where(up, 2.0 * zs / (zs + r), 0.0)
+        """Smith masking 2z / (z + R) (Walter et al. 2007, eq. 34); 0 below the horizon. See :func:`ggx_g1`."""
+        return ggx_g1(w, self.alpha_x, self.alpha_y)
 
     def g1_over_cos(self, w: Float[Array, "*batch 3"]) -> Float[Array, "*batch C"]:
-        """G1(w) / cos(theta) = 2 / (z + R): tends to 2 / (alpha sin(theta)) at the horizon."""
-        a2s2, z = self._a2s2(w)
-        up = z > 0
-        zs = jnp.where(up, z, 1.0)
-        r = safe_sqrt(a2s2 + zs * zs)
-        return jnp.where(up, 2.0 / (zs + r), 0.0)
+        """G1(w) / cos(theta) = 2 / (z + R). See :func:`ggx_g1_over_cos`."""
+        return ggx_g1_over_cos(w, self.alpha_x, self.alpha_y)
 
     def sample_wm(self, wo: Float[Array, "*batch 3"], u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
         """A visible normal (density D_wo(wm) = G1(wo) max(0, wo.wm) D(wm) / cos(theta_o))

@@ -12,7 +12,6 @@ phi_d + pi onto phi_d). Negative stored values mark missing measurements.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import equinox as eqx
@@ -21,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._atomic import atomic_write_bytes
 from ._base import AbstractBRDF, ParamSpec, check_directions, cos_theta
 from ._safe import dot, safe_atan2, safe_sqrt
 
@@ -130,7 +130,8 @@ def tabulate_merl(model, dtype=jnp.float64, chunk: int = 90) -> Float[Array, "3 
 
 def write_merl(path: str | os.PathLike, table) -> None:
     """Write a table [3, 90, 90, 180] of f_r (1/sr; negative = missing) as a MERL
-    .binary file, atomically (a temporary file in the same folder, then rename)."""
+    .binary file, atomically (``brdf.atomic_write_bytes``: a temporary file in the
+    same folder, then rename; the file gets the permissions ``open`` would give)."""
     path = Path(path)
     t = np.asarray(table, dtype=np.float64)
     if t.shape != (3,) + MERL_RES:
@@ -138,16 +139,12 @@ def write_merl(path: str | os.PathLike, table) -> None:
     if not np.all(np.isfinite(t)):
         raise ValueError(f"write_merl({path}): table has non-finite values")
     stored = t / np.asarray(MERL_SCALE)[:, None, None, None]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(np.asarray(MERL_RES, dtype="<i4").tobytes())
-            f.write(stored.astype("<f8").tobytes(order="C"))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    def write(fh):
+        fh.write(np.asarray(MERL_RES, dtype="<i4").tobytes())
+        fh.write(stored.astype("<f8").tobytes(order="C"))
+
+    atomic_write_bytes(path, write)
 
 
 def read_merl(path: str | os.PathLike, interpolation: str = "nearest") -> "MERL":

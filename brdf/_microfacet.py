@@ -18,6 +18,51 @@ from ._sum import Sum
 MASKINGS = ("smith", "smith_height_correlated", "v_groove")
 
 
+def smith_g2_separable_over_cos(
+    g1_over_cos_i: Float[ArrayLike, "*#shape"], g1_over_cos_o: Float[ArrayLike, "*#shape"]
+) -> Float[Array, "*shape"]:
+    """Separable Smith masking-shadowing divided by the microfacet BRDF's
+    4 cos_i cos_o: G1(wi) G1(wo) / (4 cos_i cos_o) (Walter et al. 2007, eq. 23),
+    from the distribution's G1 / cos values (:func:`ggx_g1_over_cos`,
+    :func:`beckmann_g1_over_cos`): finite at grazing angles. Unitless. Elementwise."""
+    return 0.25 * jnp.asarray(g1_over_cos_i) * jnp.asarray(g1_over_cos_o)
+
+
+def smith_g2_height_correlated_over_cos(
+    cos_theta_i: Float[ArrayLike, "*#shape"],
+    cos_theta_o: Float[ArrayLike, "*#shape"],
+    lambda_cos_i: Float[ArrayLike, "*#shape"],
+    lambda_cos_o: Float[ArrayLike, "*#shape"],
+) -> Float[Array, "*shape"]:
+    """Height-correlated Smith masking-shadowing G2 = 1 / (1 + Lambda(wi) + Lambda(wo))
+    (Heitz 2014, eq. 99) divided by 4 cos_i cos_o, from the distribution's
+    cos(theta) Lambda values (:func:`ggx_lambda_cos`, :func:`beckmann_lambda_cos`):
+
+        G2 / (4 cos_i cos_o) = 1 / (4 (cos_i cos_o + cos_o lc_i + cos_i lc_o))
+
+    finite at grazing angles; 0 (gradient 0) where the denominator is 0. Elementwise."""
+    den = cos_theta_i * cos_theta_o + cos_theta_o * lambda_cos_i + cos_theta_i * lambda_cos_o
+    return safe_div(0.25, den)
+
+
+def v_groove_g2_over_cos(
+    cos_theta_i: Float[ArrayLike, "*#shape"],
+    cos_theta_o: Float[ArrayLike, "*#shape"],
+    cos_theta_m: Float[ArrayLike, "*#shape"],
+    wo_dot_wm: Float[ArrayLike, "*#shape"],
+) -> Float[Array, "*shape"]:
+    """V-groove attenuation G = min(1, 2 zm zo / (wo.wm), 2 zm zi / (wo.wm))
+    (Cook & Torrance 1982, after Torrance & Sparrow 1967) divided by
+    4 cos_i cos_o, evaluated without dividing by a lone cosine: finite at grazing
+    angles. Unitless. Elementwise; meaningful where both directions are above the
+    horizon."""
+    lo = jnp.minimum(cos_theta_i, cos_theta_o)
+    hi = jnp.maximum(cos_theta_i, cos_theta_o)
+    # G = 2 zm lo / h when that is < 1; then G / (4 zi zo) = zm / (2 h hi).
+    shadowed = 2.0 * cos_theta_m * lo < wo_dot_wm
+    return jnp.where(shadowed, safe_div(cos_theta_m, 2.0 * wo_dot_wm * hi), safe_div(1.0, 4.0 * lo * hi))
+
+
 def masking_over_cos(
     distribution: AbstractMicrofacetDistribution,
     masking: str,
@@ -37,18 +82,11 @@ def masking_over_cos(
     """
     zi, zo = cos_theta(wi), cos_theta(wo)
     if masking == "smith":
-        return 0.25 * distribution.g1_over_cos(wi) * distribution.g1_over_cos(wo)
+        return smith_g2_separable_over_cos(distribution.g1_over_cos(wi), distribution.g1_over_cos(wo))
     if masking == "smith_height_correlated":
-        den = zi * zo + zo * distribution.lambda_cos(wi) + zi * distribution.lambda_cos(wo)
-        return safe_div(0.25, den)
+        return smith_g2_height_correlated_over_cos(zi, zo, distribution.lambda_cos(wi), distribution.lambda_cos(wo))
     if masking == "v_groove":
-        lo = jnp.minimum(zi, zo)
-        hi = jnp.maximum(zi, zo)
-        zm = cos_theta(wm)
-        h = dot(wo, wm)
-        # G = 2 zm lo / h when that is < 1; then G / (4 zi zo) = zm / (2 h hi).
-        shadowed = 2.0 * zm * lo < h
-        return jnp.where(shadowed, safe_div(zm, 2.0 * h * hi), safe_div(1.0, 4.0 * lo * hi))
+        return v_groove_g2_over_cos(zi, zo, cos_theta(wm), dot(wo, wm))
     raise ValueError(f"masking must be one of {MASKINGS}, got {masking!r}")
 
 
@@ -70,7 +108,9 @@ class Microfacet(AbstractBRDF):
     def __init__(self, distribution: AbstractMicrofacetDistribution, fresnel: AbstractFresnel,
                  masking: str = "smith"):
         if not isinstance(distribution, AbstractMicrofacetDistribution):
-            raise ValueError(f"Microfacet: distribution must be a GGX or Beckmann module, got {type(distribution).__name__}")
+            raise ValueError(
+                f"Microfacet: distribution must be a GGX or Beckmann module, got {type(distribution).__name__}"
+            )
         if not isinstance(fresnel, AbstractFresnel):
             raise ValueError(f"Microfacet: fresnel must be a Fresnel module, got {type(fresnel).__name__}")
         if masking not in MASKINGS:

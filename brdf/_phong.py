@@ -9,12 +9,57 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
-from ._safe import dot, safe_normalize, safe_pow
+from ._distribution import ALPHA_MIN
+from ._safe import dot, safe_div, safe_normalize, safe_pow, safe_sqrt
 
 _RHO = ParamSpec(0.0, 1.0, "sigmoid")
 # The exponent is a scale parameter (1 and 1000 are both common): exp makes
 # equal steps in u equal ratios in the exponent.
 _EXPONENT = ParamSpec(0.0, float("inf"), "exp")
+
+
+def blinn_phong_lobe(
+    cos_theta_h: Float[ArrayLike, "*#shape"],
+    rho_s: Float[ArrayLike, "*#shape"],
+    exponent: Float[ArrayLike, "*#shape"],
+    normalized: bool = True,
+) -> Float[Array, "*shape"]:
+    """The Blinn-Phong specular lobe (Blinn 1977, "Models of light reflection
+    for computer synthesized pictures"), in 1/sr:
+
+        normalized:    rho_s (exponent + 8) / (8 pi) cos(theta_h)^exponent
+        unnormalized:  rho_s cos(theta_h)^exponent
+
+    ``cos_theta_h`` = n.h with h = normalize(wi + wo); 0 where it is <= 0 (finite
+    gradients there, also in the exponent). The (exponent + 8) / (8 pi) factor is
+    the usual approximate energy normalisation (Akenine-Moller & Haines, Real-Time
+    Rendering, 2nd ed., sec. 7.6): the lobe's albedo stays close to rho_s. No
+    horizon mask: the caller zeroes below-horizon wi, wo. Elementwise (any
+    layout: [*batch, 1] cosines with [*batch, C] parameters, or [N] rows).
+    """
+    lobe = safe_pow(cos_theta_h, exponent)
+    if normalized:
+        lobe = lobe * (exponent + 8.0) / (8.0 * jnp.pi)
+    return rho_s * lobe
+
+
+def phong_exponent(alpha: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
+    """Blinn-Phong exponent with the same lobe width as a microfacet roughness
+    alpha: s = max(2 / alpha^2 - 2, 0) (Walter et al. 2007, sec. 5.2, the
+    Beckmann-Phong correspondence). Unitless; 0 for alpha >= 1. ``alpha`` is
+    clamped to ALPHA_MIN (gradient 0 below), so s <= 2e8 and stays finite in
+    float32. Inverse: :func:`alpha_from_phong_exponent`."""
+    alpha = jnp.maximum(jnp.asarray(alpha), ALPHA_MIN)
+    return jnp.maximum(2.0 / (alpha * alpha) - 2.0, 0.0)
+
+
+def alpha_from_phong_exponent(exponent: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
+    """The microfacet roughness alpha = sqrt(2 / (exponent + 2)) whose
+    :func:`phong_exponent` is ``exponent`` (Walter et al. 2007, sec. 5.2); the
+    inverse of :func:`phong_exponent` for alpha in [ALPHA_MIN, 1], i.e.
+    exponent in [0, 2 / ALPHA_MIN^2 - 2]. Unitless; 0 (finite gradient) for
+    exponent <= -2."""
+    return safe_sqrt(safe_div(2.0, jnp.maximum(jnp.asarray(exponent) + 2.0, 0.0)))
 
 
 def _mirror(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
@@ -132,10 +177,9 @@ class BlinnPhong(AbstractBRDF):
         wi, wo = check_directions("BlinnPhong", wi, wo)
         check_module_rank(self, wi.ndim)
         active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
-        lobe = safe_pow(cos_theta(safe_normalize(wi + wo)), self.exponent)
-        if self.normalized:
-            lobe = lobe * (self.exponent + 8.0) / (8.0 * jnp.pi)
-        return jnp.where(active, self.rho_d / jnp.pi + self.rho_s * lobe, 0.0)
+        cos_h = cos_theta(safe_normalize(wi + wo))
+        lobe = blinn_phong_lobe(cos_h, self.rho_s, self.exponent, self.normalized)
+        return jnp.where(active, self.rho_d / jnp.pi + lobe, 0.0)
 
     def fittable(self) -> dict[str, ParamSpec]:
         """``rho_d``, ``rho_s`` in (0, 1) (sigmoid); ``exponent`` > 0 (exp)."""

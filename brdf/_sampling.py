@@ -1,9 +1,12 @@
 """Hemisphere sampling with densities: cosine-weighted (Malley's method over
-Shirley & Chiu's concentric disk) and uniform."""
+Shirley & Chiu's concentric disk) and uniform; and the deterministic
+Fibonacci point sets (rigs, ambient-occlusion rays) that the stage and the
+renderer share."""
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._base import cos_theta
@@ -46,3 +49,46 @@ def sample_uniform_hemisphere(u: Float[Array, "*batch 2"]) -> Float[Array, "*bat
 def pdf_uniform_hemisphere(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 1"]:
     """1/(2 pi) in 1/sr above the horizon, 0 below."""
     return jnp.where(cos_theta(w) > 0, 1.0 / (2.0 * jnp.pi), 0.0)
+
+
+# The golden ratio of the Fibonacci lattice, (1 + sqrt 5) / 2, written as stage's rig had it.
+_GOLDEN = (1 + 5**0.5) / 2
+
+
+def fibonacci_sphere(n: int, axis: int = 2, hemisphere: bool = False) -> Float[np.ndarray, "n 3"]:
+    """``n`` nearly uniform unit directions [n, 3] (float64, NumPy: a static
+    pattern built on the host) on a Fibonacci (golden-angle) spiral, after
+    Gonzalez 2010 ("Measurement of areas on a sphere using Fibonacci and
+    latitude-longitude lattices", Math. Geosci. 42), in its variant for any n
+    with the points at the centres of n equal-area bands:
+
+        c_k = 1 - (2k + 1) / n,   phi_k = 2 pi k / golden,   k = 0 .. n - 1
+
+    with c_k the component along the pole ``axis`` (0, 1 or 2; 2 = the shading
+    normal) and (sqrt(1 - c^2) cos phi, sqrt(1 - c^2) sin phi) the other two
+    components in increasing index order. Point k covers the equal-area band
+    around c_k, so each point stands for 4 pi / n sr (2 pi / n with
+    ``hemisphere``). With ``hemisphere`` the points cover only the upper half
+    (c_k = 1 - (k + 0.5) / n > 0). ``fibonacci_sphere(n, axis=1)`` is exactly
+    the ordering and rounding of ``stage.fibonacci_sphere`` (the y pole).
+    """
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"fibonacci_sphere needs n >= 1 points, got {n}")
+    if axis not in (0, 1, 2):
+        raise ValueError(f"fibonacci_sphere: axis must be 0, 1 or 2, got {axis!r}")
+    k = np.arange(n, dtype=np.float64)
+    c = 1 - (k + 0.5) / n if hemisphere else 1 - (2 * k + 1) / n
+    r = np.sqrt(np.maximum(1 - c * c, 0))
+    phi = 2 * np.pi * k / _GOLDEN
+    u, v = r * np.cos(phi), r * np.sin(phi)
+    cols = [u, v]
+    cols.insert(axis, c)
+    return np.stack(cols, axis=1)
+
+
+def fibonacci_hemisphere(n: int, axis: int = 2) -> Float[np.ndarray, "n 3"]:
+    """``n`` nearly uniform unit directions [n, 3] on the upper hemisphere about
+    ``axis`` (default the shading normal z): :func:`fibonacci_sphere` with
+    ``hemisphere=True``. Each point stands for 2 pi / n sr."""
+    return fibonacci_sphere(n, axis, hemisphere=True)

@@ -1,0 +1,38 @@
+"""One progress protocol for every long-running call of the project.
+
+A progress callback is any callable ``progress(phase, done, total)``:
+``phase`` a short name of what is running ("light visibility", "simulate",
+"fit ggx", "shading"), ``done`` the units of that phase finished so far
+(cumulative, not an increment), ``total`` the units the phase will take (None
+when unknown). A phase starts with ``done = 0``. Library functions take
+``progress=None`` (silent); the CLI passes progress bars.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+
+@runtime_checkable
+class Progress(Protocol):
+    """``progress(phase, done, total)``: see the module docstring."""
+
+    def __call__(self, phase: str, done: int, total: int | None) -> None: ...
+
+
+class Phase:
+    """The counter of one phase: ``Phase(progress, "simulate", total)`` reports
+    ``done = 0`` at once, then ``advance(n)`` adds ``n`` units and reports the
+    running count. Silent when ``progress`` is None."""
+
+    def __init__(self, progress: Progress | None, name: str, total: int | None = None):
+        if progress is not None and not callable(progress):
+            raise TypeError(f"progress must be a callable progress(phase, done, total) or None, got {progress!r}")
+        self.progress, self.name, self.total, self.done = progress, str(name), total, 0
+        if progress is not None:
+            progress(self.name, 0, total)
+
+    def advance(self, n: int = 1) -> None:
+        self.done += int(n)
+        if self.progress is not None:
+            self.progress(self.name, self.done, self.total)
