@@ -5,24 +5,33 @@ z forward) and to pixel (u, v) = (fx x/z + cx, fy y/z + cy) for a pinhole,
 (fx x + cx, fy y + cy) for an orthographic camera (fx, fy in pixels per mm);
 pixel centres are at integer + 0.5. Lengths in millimetres.
 
-Camera files (``save_cameras`` / ``load_cameras``) are JSON:
-``{"convention": "opencv", "units": "mm", "cameras": [{"name", "model":
-"pinhole"|"orthographic", "width", "height", "K": 3x3, "R": 3x3, "t": 3}]}``.
+One JSON schema for a camera, shared by camera files, capture folders and map
+sets (``camera_to_dict`` / ``camera_from_dict``)::
+
+    {"name": "cam000", "model": "pinhole" | "orthographic", "width": W, "height": H,
+     "K": 3x3, "R": 3x3, "t": 3, "convention": "opencv", "units": "mm"}
+
+A camera file (``save_cameras`` / ``load_cameras``) is
+``{"convention": "opencv", "units": "mm", "cameras": [camera, ...]}``.
+``load_cameras`` also reads a bare list of cameras (a capture folder's
+``cameras.json``, ``relight.io.write_capture``), and camera entries without the
+per-camera ``convention`` / ``units`` keys (files written before they were
+added); when present they must say ``"opencv"`` and ``"mm"``.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
-from brdf import safe_div, safe_normalize
+from brdf import atomic_write_text, safe_div, safe_normalize
 
 
 class Camera(eqx.Module):
@@ -40,7 +49,8 @@ class Camera(eqx.Module):
 
     def __check_init__(self):
         if self.K.shape != (3, 3) or self.R.shape != (3, 3) or self.t.shape != (3,):
-            raise ValueError(f"Camera needs K [3,3], R [3,3], t [3]; got {self.K.shape}, {self.R.shape}, {self.t.shape}")
+            raise ValueError(f"Camera needs K [3,3], R [3,3], t [3]; "
+                             f"got {self.K.shape}, {self.R.shape}, {self.t.shape}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"Camera resolution must be positive, got {self.width}x{self.height}")
 
@@ -55,50 +65,62 @@ class Camera(eqx.Module):
         """Unit viewing direction (camera +z) in world coordinates."""
         return self.R[2]
 
-    def to_camera(self, points: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
-        """World points (mm) to camera coordinates X_c = R X + t (mm)."""
-        points = jnp.asarray(points)
-        return points @ self.R.T + self.t.reshape((1,) * (points.ndim - 1) + (3,))
+    def _cast(self, x) -> tuple[Array, Array, Array, Array]:
+        """``x``, K, R and t in one float dtype: the wider of ``x``'s (an integer
+        ``x`` counts as float32) and the camera's, as x64 allows. Explicit, so
+        float64 points and a float32 camera work under strict dtype promotion
+        (and give float64, as standard promotion would)."""
+        x = jnp.asarray(x)
+        xdt = x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else np.dtype(np.float32)
+        dt = jax.dtypes.canonicalize_dtype(np.promote_types(xdt, self.K.dtype))
+        return x.astype(dt), self.K.astype(dt), self.R.astype(dt), self.t.astype(dt)
 
-    def project(self, points: Float[Array, "*batch 3"]) -> tuple[Float[Array, "*batch 2"], Float[Array, " *batch"]]:
+    def to_camera(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
+        """World points (mm) to camera coordinates X_c = R X + t (mm)."""
+        points, _, R, t = self._cast(points)
+        return points @ R.T + t.reshape((1,) * (points.ndim - 1) + (3,))
+
+    def project(self, points: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*batch 2"], Float[Array, " *batch"]]:
         """Pixel coordinates and depth (camera z, mm) of world points."""
         xc = self.to_camera(points)
+        _, K, _, _ = self._cast(xc)
         z = xc[..., 2]
         if self.orthographic:
             xy1 = jnp.concatenate([xc[..., :2], jnp.ones_like(xc[..., 2:3])], axis=-1)
-            return (xy1 @ self.K.T)[..., :2], z
-        uvw = xc @ self.K.T
+            return (xy1 @ K.T)[..., :2], z
+        uvw = xc @ K.T
         pix = safe_div(uvw[..., :2], uvw[..., 2:3])
         return pix, z
 
-    def rays(self, pixels: Float[Array, "*batch 2"]) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
+    def rays(self, pixels: Float[ArrayLike, "*batch 2"]) -> tuple[Float[Array, "*origin 3"], Float[Array, "*batch 3"]]:
         """Origins and unit world directions of the rays through pixels. A pinhole
         returns its centre [3] as the one origin; an orthographic camera returns
         one origin per pixel [*batch, 3] on its image plane (camera z = 0)."""
-        pixels = jnp.asarray(pixels)
+        pixels, K, R, t = self._cast(pixels)
         ones = jnp.ones(pixels.shape[:-1] + (1,), pixels.dtype)
-        d_cam = jnp.concatenate([pixels, ones], axis=-1) @ jnp.linalg.inv(self.K).T
+        d_cam = jnp.concatenate([pixels, ones], axis=-1) @ jnp.linalg.inv(K).T
         if self.orthographic:
             xc = jnp.concatenate([d_cam[..., :2], jnp.zeros_like(ones)], axis=-1)
-            origins = (xc - self.t.reshape((1,) * (xc.ndim - 1) + (3,))) @ self.R
-            return origins, jnp.broadcast_to(self.forward, origins.shape)
-        return self.center, safe_normalize(d_cam @ self.R)
+            origins = (xc - t.reshape((1,) * (xc.ndim - 1) + (3,))) @ R
+            return origins, jnp.broadcast_to(R[2], origins.shape)
+        return -R.T @ t, safe_normalize(d_cam @ R)
 
-    def view_directions(self, points: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    def view_directions(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
         """Unit world directions from points toward the camera (wo before the
         change to the shading frame): toward the centre for a pinhole, -forward
         for an orthographic camera."""
-        points = jnp.asarray(points)
+        points, _, R, t = self._cast(points)
         if self.orthographic:
-            return jnp.broadcast_to(-self.forward, points.shape)
-        return safe_normalize(self.center.reshape((1,) * (points.ndim - 1) + (3,)) - points)
+            return jnp.broadcast_to(-R[2], points.shape)
+        return safe_normalize((-R.T @ t).reshape((1,) * (points.ndim - 1) + (3,)) - points)
 
-    def pixel_area(self, points: Float[Array, "*batch 3"]) -> Float[Array, " *batch"]:
+    def pixel_area(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, " *batch"]:
         """Area (mm^2) of one pixel's footprint on the plane through each point
         perpendicular to the optical axis: z^2 / (fx fy) (pinhole), 1 / (fx fy)
         (orthographic)."""
         z = self.to_camera(points)[..., 2]
-        inv = 1.0 / (self.K[0, 0] * self.K[1, 1])
+        _, K, _, _ = self._cast(z)
+        inv = 1.0 / (K[0, 0] * K[1, 1])
         return inv * jnp.ones_like(z) if self.orthographic else inv * z * z
 
 
@@ -139,7 +161,8 @@ def orthographic(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), extent_mm: flo
 
 
 def camera_ring(n: int, radius: float, elevation_mm: float = 0.0, target=(0.0, 0.0, 0.0), fov_deg: float = 30.0,
-                width: int = 512, height: int = 512, start_deg: float = 0.0, arc_deg: float = 360.0) -> tuple[Camera, ...]:
+                width: int = 512, height: int = 512, start_deg: float = 0.0,
+                arc_deg: float = 360.0) -> tuple[Camera, ...]:
     """``n`` pinhole cameras on a horizontal ring of ``radius`` (mm) about the y
     axis at height ``elevation_mm`` (mm), all looking at ``target`` — the
     multi-view layout of face-scanning domes. Camera k sits at azimuth
@@ -160,67 +183,101 @@ def camera_ring(n: int, radius: float, elevation_mm: float = 0.0, target=(0.0, 0
     return tuple(look_at(e, tgt, fov_deg=fov_deg, width=width, height=height) for e in eyes)
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+CONVENTION = "opencv"
+UNITS = "mm"
+MODELS = ("pinhole", "orthographic")
+# R must be a rotation to this tolerance: float32 matrices written as float64
+# are orthonormal to ~1e-7, so 1e-4 admits them and refuses a scaled or
+# sheared matrix.
+_ROTATION_TOL = 1e-4
+
+
+def camera_to_dict(camera: Camera, name: str | None = None) -> dict:
+    """The camera as a JSON-ready dict (module docstring schema; lists of
+    float64, so ``json.dumps`` takes it as it is). ``name`` is stored when given."""
+    out = {} if name is None else {"name": str(name)}
+    out.update({"model": "orthographic" if camera.orthographic else "pinhole", "width": int(camera.width),
+                "height": int(camera.height), "K": np.asarray(camera.K, np.float64).tolist(),
+                "R": np.asarray(camera.R, np.float64).tolist(), "t": np.asarray(camera.t, np.float64).tolist(),
+                "convention": CONVENTION, "units": UNITS})
+    return out
+
+
+def camera_from_dict(doc: object, where: str = "camera") -> Camera:
+    """A camera from its dict (``camera_to_dict``'s schema; the ``convention`` /
+    ``units`` / ``name`` keys optional). Raises ValueError starting with
+    ``where`` (e.g. ``"cameras.json: camera 2"``) and naming the field when one
+    is missing or malformed: K, R, t must be finite with shapes 3x3, 3x3, 3; R a
+    rotation to 1e-4; width and height positive integers; model pinhole or
+    orthographic."""
+    if not isinstance(doc, Mapping):
+        raise ValueError(f"{where}: expected a JSON object, got {type(doc).__name__}")
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        K, R, t = (np.asarray(doc[k], np.float64) for k in ("K", "R", "t"))
+        w, h = doc["width"], doc["height"]
+    except KeyError as exc:
+        raise ValueError(f"{where}: missing field {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: malformed field ({exc})") from None
+    for name, a, shp in (("K", K, (3, 3)), ("R", R, (3, 3)), ("t", t, (3,))):
+        if a.shape != shp or not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}: field {name!r} must be finite with shape {shp}, got {a.shape}")
+    if np.abs(R @ R.T - np.eye(3)).max() > _ROTATION_TOL or np.linalg.det(R) < 0:
+        raise ValueError(f"{where}: field 'R' is not a rotation matrix")
+    for name, v in (("width", w), ("height", h)):
+        number = not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
+        if not (number and np.isfinite(v) and v == int(v) and v > 0):
+            raise ValueError(f"{where}: field {name!r} must be a positive integer, got {v!r}")
+    model = doc.get("model", "pinhole")
+    if model not in MODELS:
+        raise ValueError(f"{where}: field 'model' must be 'pinhole' or 'orthographic', got {model!r}")
+    for name, expected in (("convention", CONVENTION), ("units", UNITS)):
+        if name in doc and doc[name] != expected:
+            raise ValueError(f"{where}: field {name!r} must be {expected!r}, got {doc[name]!r}")
+    return Camera(K=jnp.asarray(K, jnp.float32), R=jnp.asarray(R, jnp.float32), t=jnp.asarray(t, jnp.float32),
+                  width=int(w), height=int(h), orthographic=model == "orthographic")
+
+
+def _read_json(path: Path, what: str):
+    """The parsed JSON of ``path``; FileNotFoundError / ValueError naming the file."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} not found: {path}")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
 
 
 def save_cameras(path, cameras, names=None) -> Path:
-    """Write cameras to a JSON file (module docstring format), atomically: a
-    temporary file in the same folder, then ``os.replace``."""
+    """Write cameras to a JSON camera file (module docstring schema), atomically
+    (``brdf.atomic_write_text``). Names default to cam000, cam001, ..."""
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
     path = Path(path)
     names = list(names) if names is not None else [f"cam{i:03d}" for i in range(len(cameras))]
     if len(names) != len(cameras):
         raise ValueError(f"save_cameras: {len(names)} names for {len(cameras)} cameras")
-    doc = {"convention": "opencv", "units": "mm", "cameras": [
-        {"name": nm, "model": "orthographic" if c.orthographic else "pinhole", "width": c.width, "height": c.height,
-         "K": np.asarray(c.K, np.float64).tolist(), "R": np.asarray(c.R, np.float64).tolist(),
-         "t": np.asarray(c.t, np.float64).tolist()} for nm, c in zip(names, cameras)]}
-    _atomic_write_text(path, json.dumps(doc, indent=1))
+    doc = {"convention": CONVENTION, "units": UNITS,
+           "cameras": [camera_to_dict(c, nm) for nm, c in zip(names, cameras, strict=True)]}
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
     return path
 
 
 def load_cameras(path) -> tuple[Camera, ...]:
-    """Read cameras written by ``save_cameras`` (OpenCV K, R, t in mm). Raises
+    """Read a camera file: ``save_cameras``'s object, or a bare list of camera
+    dicts (a capture folder's ``cameras.json``). Raises FileNotFoundError, or
     ValueError naming the file, the camera and the field when one is missing or
-    malformed (R must be a rotation to 1e-4)."""
+    malformed (see ``camera_from_dict``)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"camera file not found: {path}")
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(doc, dict) or not isinstance(doc.get("cameras"), list) or not doc["cameras"]:
-        raise ValueError(f"{path}: expected an object with a non-empty 'cameras' list")
-    out = []
-    for i, c in enumerate(doc["cameras"]):
-        where = f"{path}: camera {i}"
-        try:
-            K, R, t = (np.asarray(c[k], np.float64) for k in ("K", "R", "t"))
-            w, h = int(c["width"]), int(c["height"])
-        except KeyError as exc:
-            raise ValueError(f"{where}: missing field {exc.args[0]!r}") from None
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: malformed field ({exc})") from None
-        for name, a, shp in (("K", K, (3, 3)), ("R", R, (3, 3)), ("t", t, (3,))):
-            if a.shape != shp or not np.all(np.isfinite(a)):
-                raise ValueError(f"{where}: field {name!r} must be finite with shape {shp}, got {a.shape}")
-        if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
-            raise ValueError(f"{where}: field 'R' is not a rotation matrix")
-        model = c.get("model", "pinhole")
-        if model not in ("pinhole", "orthographic"):
-            raise ValueError(f"{where}: field 'model' must be 'pinhole' or 'orthographic', got {model!r}")
-        out.append(Camera(K=jnp.asarray(K, jnp.float32), R=jnp.asarray(R, jnp.float32), t=jnp.asarray(t, jnp.float32),
-                          width=w, height=h, orthographic=model == "orthographic"))
-    return tuple(out)
+    doc = _read_json(path, "camera file")
+    if isinstance(doc, Mapping):
+        cams = doc.get("cameras")
+        if not isinstance(cams, list) or not cams:
+            raise ValueError(f"{path}: expected a non-empty 'cameras' list")
+        for name, expected in (("convention", CONVENTION), ("units", UNITS)):
+            if name in doc and doc[name] != expected:
+                raise ValueError(f"{path}: field {name!r} must be {expected!r}, got {doc[name]!r}")
+    elif isinstance(doc, list) and doc:
+        cams = doc
+    else:
+        raise ValueError(f"{path}: expected an object with a non-empty 'cameras' list, or a non-empty list of cameras")
+    return tuple(camera_from_dict(c, f"{path}: camera {i}") for i, c in enumerate(cams))

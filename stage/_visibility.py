@@ -2,7 +2,9 @@
 
 Computed once per geometry with trimesh's ray intersector (Embree through
 embreex where it is installed, trimesh's pure-numpy intersector otherwise);
-not differentiated.
+not differentiated. ``Occluder`` is the one ray caster: ``light_visibility``,
+``camera_visibility`` and ``primary_hits`` use it, and so can renderers that
+need occlusion queries along arbitrary directions (``Occluder.visible``).
 """
 
 from __future__ import annotations
@@ -10,10 +12,14 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from brdf import atomic_write_bytes
+
 from ._camera import Camera
 from ._mesh import Mesh
+from ._progress import Phase
 from ._rig import Rig
 from ._surface import Surface
+
 
 class PackedMask:
     """A boolean mask [..., N] stored 8 entries per byte along its last axis
@@ -28,7 +34,7 @@ class PackedMask:
             raise ValueError(f"PackedMask: {self.bits.shape[-1]} bytes cannot hold {self.n} entries")
 
     @classmethod
-    def pack(cls, mask) -> "PackedMask":
+    def pack(cls, mask) -> PackedMask:
         """Pack a bool array along its last axis."""
         m = np.asarray(mask, dtype=bool)
         return cls(np.packbits(m, axis=-1), m.shape[-1])
@@ -53,24 +59,11 @@ class PackedMask:
         return a if dtype is None else a.astype(dtype)
 
     def save(self, path) -> None:
-        """Write to an .npz file atomically (temporary file in the same folder, then os.replace)."""
-        import os
-        import tempfile
-        from pathlib import Path
-
-        path = Path(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
-        os.close(fd)
-        try:
-            np.savez_compressed(tmp, bits=self.bits, n=np.int64(self.n))
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write to an .npz file atomically (``brdf.atomic_write_bytes``)."""
+        atomic_write_bytes(path, lambda fh: np.savez_compressed(fh, bits=self.bits, n=np.int64(self.n)))
 
     @classmethod
-    def load(cls, path) -> "PackedMask":
+    def load(cls, path) -> PackedMask:
         """Read a mask written by ``save``."""
         with np.load(path) as z:
             return cls(z["bits"], int(z["n"]))
@@ -88,36 +81,77 @@ def as_mask(mask, start: int = 0, stop: int | None = None) -> np.ndarray:
 _OFFSET_FRACTION = 1e-4
 
 
-def _intersector(mesh: Mesh):
-    tm = mesh.trimesh()
-    if trimesh.ray.has_embree:
-        return trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
-    return trimesh.ray.ray_triangle.RayMeshIntersector(tm)
+class Occluder:
+    """Occlusion queries against ``mesh`` from the samples of ``surface``.
 
+    Rays start at each sample pushed off the surface along its (geometric)
+    normal by 1e-4 of the mesh's bounding-box diagonal, so a ray does not hit
+    the triangle it starts on. A direction below the sample's tangent plane
+    (``dot(d, n) <= 0``) counts as blocked.
 
-def _origins(mesh: Mesh, surface: Surface) -> np.ndarray:
-    diag = np.linalg.norm(mesh.vertices.max(0) - mesh.vertices.min(0))
-    p = np.asarray(surface.position, dtype=np.float64)
-    n = np.asarray(surface.normal, dtype=np.float64)
-    return p + n * (_OFFSET_FRACTION * diag)
+    Attributes: ``origin`` [P, 3] and ``normal`` [P, 3] (float64, mm), and
+    ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through embreex
+    where installed, else trimesh's numpy one).
+    """
 
+    def __init__(self, mesh: Mesh, surface: Surface | None = None):
+        tm = mesh.trimesh()
+        if trimesh.ray.has_embree:
+            self.intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
+        else:  # pragma: no cover - the pure-numpy intersector is slow but correct
+            self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
+        v = np.asarray(mesh.vertices, np.float64)
+        self.offset = _OFFSET_FRACTION * float(np.linalg.norm(v.max(0) - v.min(0)))
+        if surface is not None:
+            self.normal = np.asarray(surface.normal, np.float64)
+            self.origin = np.asarray(surface.position, np.float64) + self.normal * self.offset
+        else:
+            self.normal = self.origin = np.zeros((0, 3))
 
-def _unoccluded(inter, origins, targets, chunk: int, progress=None) -> np.ndarray:
-    """For each (origin, target) pair, True where the segment meets no triangle."""
-    out = np.ones(len(origins), dtype=bool)
-    for s in range(0, len(origins), chunk):
-        o = origins[s:s + chunk]
-        d = targets[s:s + chunk] - o
-        dist = np.linalg.norm(d, axis=1)
-        d = d / np.maximum(dist, 1e-12)[:, None]
-        locs, ray_idx, _ = inter.intersects_location(o, d, multiple_hits=False)
-        if len(ray_idx):
-            hit_dist = np.linalg.norm(locs - o[ray_idx], axis=1)
-            blocked = hit_dist < dist[ray_idx]
-            out[s + ray_idx[blocked]] = False
-        if progress is not None:
-            progress(len(o))
-    return out
+    def visible(self, idx, dirs, active=None, distance=None) -> np.ndarray:
+        """bool [n, k]: sample ``idx[i]`` sees along ``dirs[i, j]``.
+
+        Args:
+            idx: [n] sample indices into the surface.
+            dirs: [n, k, 3] unit world directions.
+            active: optional bool [n, k]; inactive pairs are False, and cast no ray.
+            distance: optional [n, k] mm: a hit counts only nearer than this
+                (a segment to a point light); None for rays to infinity.
+        """
+        idx = np.asarray(idx)
+        dirs = np.asarray(dirs, np.float64)
+        n, k = dirs.shape[:2]
+        cast = np.einsum("nkc,nc->nk", dirs, self.normal[idx]) > 0
+        if active is not None:
+            cast &= np.asarray(active, bool)
+        out = np.zeros((n, k), bool)
+        ii, jj = np.nonzero(cast)
+        if len(ii):
+            o = self.origin[idx[ii]]
+            d = dirs[ii, jj]
+            if distance is None:
+                out[ii, jj] = ~self.intersector.intersects_any(o, d)
+            else:
+                out[ii, jj] = self.segments_clear(o, o + d * np.asarray(distance, np.float64)[ii, jj, None])
+        return out
+
+    def segments_clear(self, origins, targets, chunk: int = 1 << 20) -> np.ndarray:
+        """bool [N]: the segment from ``origins[i]`` to ``targets[i]`` (both [N, 3],
+        world, mm) meets no triangle. Rays are cast in blocks of ``chunk``."""
+        origins = np.asarray(origins, np.float64)
+        targets = np.asarray(targets, np.float64)
+        out = np.ones(len(origins), dtype=bool)
+        for s in range(0, len(origins), max(1, int(chunk))):
+            o = origins[s:s + chunk]
+            d = targets[s:s + chunk] - o
+            dist = np.linalg.norm(d, axis=1)
+            d = d / np.maximum(dist, 1e-12)[:, None]
+            locs, ray_idx, _ = self.intersector.intersects_location(o, d, multiple_hits=False)
+            if len(ray_idx):
+                hit_dist = np.linalg.norm(locs - o[ray_idx], axis=1)
+                blocked = hit_dist < dist[ray_idx]
+                out[s + ray_idx[blocked]] = False
+        return out
 
 
 def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 20, progress=None,
@@ -126,42 +160,40 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
     light below the sample's tangent plane counts as not visible). With
     ``packed``, a ``PackedMask`` (8 lights per byte) instead, never holding the
     bool array. Rays are cast in blocks of about ``chunk`` (peak memory ~ 100
-    bytes per ray); ``progress(n)`` is called with the rays done per block."""
-    origins = _origins(mesh, surface)
+    bytes per ray); ``progress(phase, done, total)`` (``stage.Progress``) is
+    told the (sample, light) pairs done, phase "light visibility", after each
+    block. Every ray is cast by :class:`Occluder`."""
+    occ = Occluder(mesh, surface)
     pos = np.asarray(rig.position, dtype=np.float64)
-    n = np.asarray(surface.normal, dtype=np.float64)
-    P, L = origins.shape[0], pos.shape[0]
-    inter = _intersector(mesh)
-    far = 1e3 * (1.0 + np.abs(origins).max())
+    P, L = occ.origin.shape[0], pos.shape[0]
     dirs = pos / np.linalg.norm(pos, axis=1, keepdims=True)
     # Samples per block so a block's rays (P_b x L x 3 float64) stay near ``chunk`` rays.
     block = max(1, int(chunk) // max(L, 1))
+    bar = Phase(progress, "light visibility", P * L)
     vis = np.zeros((P, L), dtype=bool) if not packed else None
     bits = np.zeros((P, (L + 7) // 8), np.uint8) if packed else None
     for s in range(0, P, block):
-        o_b, n_b = origins[s:s + block], n[s:s + block]
+        idx = np.arange(s, min(s + block, P))
         if rig.near_field:
-            to_light = pos[None, :, :] - o_b[:, None, :]
+            # A point light: the segment from the sample to the light.
+            to_light = pos[None, :, :] - occ.origin[idx, None, :]
+            dist = np.linalg.norm(to_light, axis=-1)
+            v_b = occ.visible(idx, to_light / np.maximum(dist, 1e-12)[..., None], distance=dist)
         else:
-            # A distant light is a point far beyond the mesh along its direction.
-            to_light = np.broadcast_to(dirs[None] * far, (len(o_b), L, 3))
-        above = np.einsum("plk,pk->pl", to_light, n_b) > 0
-        pi, li = np.nonzero(above)
-        o = o_b[pi]
-        v_b = np.zeros((len(o_b), L), dtype=bool)
-        v_b[pi, li] = _unoccluded(inter, o, o + to_light[pi, li], len(o) + 1, progress)
+            # A distant light: a ray to infinity along its direction.
+            v_b = occ.visible(idx, np.broadcast_to(dirs[None], (len(idx), L, 3)))
         if packed:
             bits[s:s + block] = np.packbits(v_b, axis=-1)
         else:
             vis[s:s + block] = v_b
+        bar.advance(len(idx) * L)
     return PackedMask(bits, L) if packed else vis
 
 
 def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera) -> np.ndarray:
     """bool [V, P]: sample p faces camera v, projects inside its image, and is not occluded."""
-    inter = _intersector(mesh)
-    origins = _origins(mesh, surface)
-    n = np.asarray(surface.normal, dtype=np.float64)
+    occ = Occluder(mesh, surface)
+    origins, n = occ.origin, occ.normal
     out = []
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
     for cam in cameras:
@@ -177,7 +209,7 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
         facing = np.sum((targets - origins) * n, axis=1) > 0
         cand = np.nonzero(inside & facing)[0]
         vis = np.zeros(len(origins), dtype=bool)
-        vis[cand] = _unoccluded(inter, origins[cand], targets[cand], 1 << 20)
+        vis[cand] = occ.segments_clear(origins[cand], targets[cand])
         out.append(vis)
     return np.stack(out)
 
@@ -198,7 +230,7 @@ def primary_hits(mesh: Mesh, camera: Camera, supersample: int = 1):
         # The image plane may cut the mesh: start the rays well behind it.
         back = 2.0 * (np.abs(mesh.vertices).max() + np.abs(o).max())
         o = o - d * back
-    locs, ray_idx, tri_idx = _intersector(mesh).intersects_location(o, d, multiple_hits=False)
+    locs, ray_idx, tri_idx = Occluder(mesh).intersector.intersects_location(o, d, multiple_hits=False)
     face = np.full(h * w, -1, np.int64)
     pos = np.zeros((h * w, 3))
     face[ray_idx] = tri_idx

@@ -17,82 +17,25 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
+from . import demo as _cli_demo
 from . import fit as _cli_fit
-
+from . import info as _cli_info
 from . import render as _cli_render
-
 from . import simulate as _cli_simulate
 from ._common import CLIError
 
-
-def _cmd_demo(args) -> int:
-    from .demo import run_demo
-    from ..envmap._latlong import load_envmap
-
-    if args.envmap is not None:
-        load_envmap(args.envmap)  # refuse a missing or corrupt map before minutes of simulation and fitting
-    report = run_demo(Path(args.out), resolution=args.resolution, envmap=args.envmap,
-                      image_size=args.image_size, quiet=args.quiet)
-    print(f"wrote {args.out}/ (report.md, report.json, settings.json, *.exr, *.png)")
-    print(f"diffuse albedo error (median) {100 * report['diffuse_albedo_rel_error_median']:.3f}%, "
-          f"roughness error (median) {100 * report['roughness_rel_error_median']:.3f}%, "
-          f"relit PSNR {report['relit_from_fit_vs_image_based_psnr_db']:.1f} dB")
-    return 0
-
-
-def _cmd_info(args) -> int:
-    import platform
-
-    import jax
-
-    import stage
-
-    from .demo import bundled_envmap_path
-
-    def version(dist):
-        try:
-            from importlib.metadata import version as v
-
-            return v(dist)
-        except Exception:
-            return "not installed"
-
-    print(f"relight {version('lightstage-relight')} (python {platform.python_version()})")
-    print("libraries: " + ", ".join(f"{d} {version(d)}" for d in ("jax", "equinox", "optimistix", "numpy", "OpenEXR",
-                                                                   "trimesh", "embreex")))
-    devices = jax.devices()
-    print(f"jax {jax.__version__} on {jax.default_backend()} ({len(devices)} device(s): "
-          f"{', '.join(str(d) for d in devices[:4])}{', ...' if len(devices) > 4 else ''})")
-    rig = stage.light_stage_x()
-    print(f"bundled rig: ICT Light Stage X, {rig.num_lights} lights")
-    print(f"bundled mesh: {stage.head_mesh_path()}")
-    print(f"bundled environment map: {bundled_envmap_path()}")
-    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
-    if shared.is_dir():
-        entries = sorted(p.name for p in shared.iterdir())
-        print(f"shared data: {shared} ({', '.join(entries[:8])}{', ...' if len(entries) > 8 else ''})")
-    else:
-        print("shared data: none (../shared/data not found)")
-    return 0
+# The commands in the order ``relight --help`` lists them; each module has
+# ``add_parser(subparsers)`` and ``run(args)`` and imports no other command.
+COMMANDS = (_cli_simulate, _cli_fit, _cli_render, _cli_demo, _cli_info)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="relight", description="Light-stage simulation, reflectance fitting and relighting.")
+    p = argparse.ArgumentParser(prog="relight",
+                                description="Light-stage simulation, reflectance fitting and relighting.")
     sub = p.add_subparsers(dest="command", metavar="<command>")
-    _cli_simulate.add_parser(sub)
-    _cli_fit.add_parser(sub)
-    _cli_render.add_parser(sub)
-    d = sub.add_parser("demo", help="simulate, fit and relight the bundled head scan (built-in defaults)")
-    d.add_argument("--out", default="relight-demo", help="output folder (default: ./relight-demo)")
-    d.add_argument("--resolution", type=int, default=128, help="texel grid size (default: 128)")
-    d.add_argument("--envmap", default=None, help="environment map (.hdr/.exr, lat-long); default: bundled Venice Sunset")
-    d.add_argument("--image-size", type=int, default=384, help="preview image size in pixels (default: 384)")
-    d.add_argument("--quiet", action="store_true", help="no progress bars")
-    d.set_defaults(func=_cmd_demo)
-    i = sub.add_parser("info", help="versions, devices, bundled data and the shared data folder")
-    i.set_defaults(func=_cmd_info)
+    for command in COMMANDS:
+        command.add_parser(sub)
     return p
 
 

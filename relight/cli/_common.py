@@ -1,10 +1,11 @@
-"""Pieces the ``relight`` subcommands share: parsing ``--rig`` / ``--camera`` /
-``--mesh``, rebuilding a texel surface from what a capture or map set
-recorded, progress bars, settings.json and previews."""
+"""Pieces the ``relight`` subcommands share: parsing ``--rig`` / ``--camera``,
+the default ``--envmap``, the demo's ground-truth material, progress bars,
+settings.json and previews. Library logic (reading captures and map sets,
+rebuilding texel surfaces, relighting) lives in ``relight.io`` /
+``relight.render``; command modules import only this module and the library."""
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -14,8 +15,7 @@ from tqdm.auto import tqdm
 
 import stage
 
-from ..io._atomic import atomic_write_bytes
-from ..io._texture_set import _jsonable as jsonable  # noqa: F401  (one JSON conversion for maps.json and the CLI)
+from ..io._json import write_json as _write_json
 
 
 class CLIError(Exception):
@@ -23,65 +23,53 @@ class CLIError(Exception):
     ``relight <command>: error: <message>``, exit code 1."""
 
 
-def bar(total, desc, quiet):
-    return tqdm(total=total, desc=desc, unit="it", leave=False, disable=quiet, dynamic_ncols=True)
+class Bar:
+    """A progress bar (tqdm, on stderr) that is itself the ``progress`` callback
+    of every library call, whichever of the forms it takes:
+    ``progress(phase, done, total)`` (``stage.Progress``, the project's protocol:
+    the bar follows the phase, its count and total), ``progress(n)`` (n more
+    units) or ``progress("stage name")`` (shown beside the bar)."""
+
+    def __init__(self, total, desc, quiet, leave=False):
+        self._bar = tqdm(total=total, desc=desc, unit="it", leave=leave, disable=quiet, dynamic_ncols=True)
+
+    def __enter__(self) -> Bar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._bar.close()
+
+    def update(self, n: int = 1) -> None:
+        self._bar.update(n)
+
+    def __call__(self, *args) -> None:
+        if len(args) == 3:
+            phase, done, total = args
+            if total is not None and total != self._bar.total:
+                self._bar.reset(total=total)
+            self._bar.set_description_str(str(phase), refresh=False)
+            self._bar.update(int(done) - self._bar.n)
+        elif len(args) == 1 and isinstance(args[0], str):
+            self._bar.set_postfix_str(args[0])
+        elif len(args) == 1:
+            self._bar.update(int(args[0]))
+        else:
+            raise TypeError(f"progress: expected (phase, done, total), (n) or (message), got {args!r}")
 
 
+def bar(total, desc, quiet, leave=False) -> Bar:
+    return Bar(total, desc, quiet, leave)
 
 
 def write_json(path: Path, obj) -> None:
-    text = json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n"
-    atomic_write_bytes(path, lambda fh: fh.write(text.encode()))
+    """``relight.io.write_json`` (atomic, indent 2): reports and settings."""
+    _write_json(path, obj, indent=2)
 
 
 def write_settings(out: Path, command: str, args, **resolved) -> None:
     """settings.json: the command, every flag as given/defaulted, and the resolved values."""
     flags = {k: v for k, v in vars(args).items() if k not in ("func", "command")}
     write_json(Path(out) / "settings.json", {"command": f"relight {command}", "flags": flags, "resolved": resolved})
-
-
-def read_json(path: Path, what: str):
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing ({what})")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise CLIError(f"{path}: invalid JSON ({err})") from None
-
-
-# ------------------------------------------------------------------ meshes
-
-
-def mesh_spec(path: str | None) -> dict:
-    """How to load the mesh again: the bundled head (scaled to mm, centred) or a file (mm, as is)."""
-    if path is None or path in ("head", "bundled"):
-        return {"bundled": "head", "path": str(stage.head_mesh_path()), "scale": stage.HEAD_SCALE_MM, "center": True}
-    p = Path(path).resolve()
-    if not p.is_file():
-        raise FileNotFoundError(f"{path}: mesh file not found")
-    return {"bundled": None, "path": str(p), "scale": 1.0, "center": False}
-
-
-def load_mesh(spec: dict, where: str = "") -> stage.Mesh:
-    if not isinstance(spec, dict) or "path" not in spec:
-        raise CLIError(f"{where}: no mesh recorded (expected a 'surface' entry with the mesh 'path')")
-    if spec.get("bundled") == "head":
-        return stage.load_head()
-    path = Path(spec["path"])
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: mesh file not found (recorded in {where})")
-    return stage.load_mesh(path, scale=float(spec.get("scale", 1.0)), center=bool(spec.get("center", False)),
-                           require_uv=True)
-
-
-def texel_surface(spec: dict, resolution, where: str = ""):
-    """(mesh, full texel surface) for a recorded mesh spec and texel resolution."""
-    mesh = load_mesh(spec, where)
-    try:
-        res = tuple(int(r) for r in (resolution if np.ndim(resolution) else (resolution, resolution)))
-    except (TypeError, ValueError):
-        raise CLIError(f"{where}: bad texel resolution {resolution!r}") from None
-    return mesh, stage.texel_samples(mesh, res)
 
 
 # ------------------------------------------------------------------ rigs
@@ -110,34 +98,7 @@ def parse_rig(spec: str) -> tuple[stage.Rig, str]:
         raise CLIError(f"--rig {spec}: not lsx, dome:N or an existing rig file")
     if p.is_dir():
         p = p / "rig.json"
-    return rig_from_json(read_json(p, "rig file"), p), f"rig file {p}"
-
-
-def rig_to_json(rig: stage.Rig) -> dict:
-    return {"positions": np.asarray(rig.position, np.float64), "intensities": np.asarray(rig.intensity, np.float64),
-            "solid_angles": np.asarray(rig.solid_angle, np.float64), "near_field": bool(rig.near_field),
-            "units": {"positions": "mm (distant lights: direction x radius)",
-                      "intensities": "radiant intensity (near field) or irradiance at normal incidence (distant)"}}
-
-
-def rig_from_json(doc, where) -> stage.Rig:
-    if not isinstance(doc, dict):
-        raise CLIError(f"{where}: a rig file must be a JSON object")
-    near = bool(doc.get("near_field", "positions" in doc and "directions" not in doc))
-    key = "positions" if "positions" in doc else "directions" if "directions" in doc else None
-    if key is None:
-        raise CLIError(f"{where}: rig needs 'positions' or 'directions' ([L, 3])")
-    try:
-        pos = np.asarray(doc[key], np.float64)
-        inten = np.asarray(doc.get("intensities", 1.0), np.float64)
-        if key == "directions":
-            pos = pos / np.linalg.norm(pos, axis=1, keepdims=True) * 1000.0
-        rig = stage.make_rig(pos, inten, near_field=near)
-    except (ValueError, TypeError, IndexError) as err:
-        raise CLIError(f"{where}: bad rig ({err})") from None
-    if "solid_angles" in doc and len(doc["solid_angles"]) == rig.num_lights:
-        rig = stage.Rig(rig.position, rig.intensity, jnp.asarray(doc["solid_angles"], jnp.float32), rig.near_field)
-    return rig
+    return stage.load_rig(p), f"rig file {p}"
 
 
 # ------------------------------------------------------------------ cameras
@@ -156,7 +117,9 @@ def front_camera(mesh: stage.Mesh, size: int) -> stage.Camera:
 
 
 def parse_cameras(spec: str | None, mesh: stage.Mesh, size: int, default=None) -> tuple[stage.Camera, ...]:
-    """``front`` (see :func:`front_camera`) or a cameras.json (``stage.save_cameras`` format)."""
+    """``front`` (see :func:`front_camera`) or a camera file (``stage.load_cameras``:
+    ``stage.save_cameras``'s, or a capture folder's ``cameras.json``, or a folder
+    holding one)."""
     if spec is None:
         if default is not None:
             return tuple(default)
@@ -168,31 +131,7 @@ def parse_cameras(spec: str | None, mesh: stage.Mesh, size: int, default=None) -
         p = p / "cameras.json"
     if not p.is_file():
         raise FileNotFoundError(f"--camera {spec}: not 'front' and no such cameras file")
-    doc = read_json(p, "cameras file")
-    if isinstance(doc, list):  # a capture folder's cameras.json
-        return cameras_from_json(doc, p)
     return stage.load_cameras(p)
-
-
-def camera_to_json(cam: stage.Camera, name: str) -> dict:
-    return {"name": name, "model": "orthographic" if cam.orthographic else "pinhole", "width": cam.width,
-            "height": cam.height, "K": np.asarray(cam.K, np.float64), "R": np.asarray(cam.R, np.float64),
-            "t": np.asarray(cam.t, np.float64), "convention": "opencv", "units": "mm"}
-
-
-def cameras_from_json(doc, where) -> tuple[stage.Camera, ...]:
-    out = []
-    for i, c in enumerate(doc):
-        try:
-            K, R, t = (np.asarray(c[k], np.float64) for k in ("K", "R", "t"))
-            out.append(stage.Camera(K=jnp.asarray(K, jnp.float32), R=jnp.asarray(R, jnp.float32),
-                                    t=jnp.asarray(t, jnp.float32), width=int(c["width"]), height=int(c["height"]),
-                                    orthographic=c.get("model", "pinhole") == "orthographic"))
-        except (KeyError, TypeError, ValueError) as err:
-            raise CLIError(f"{where}: camera {i}: missing or bad field ({err})") from None
-    if not out:
-        raise CLIError(f"{where}: no cameras")
-    return tuple(out)
 
 
 # ------------------------------------------------------------------ previews
@@ -205,8 +144,8 @@ def auto_exposure(img: np.ndarray) -> float:
 
 
 def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, curve: str = "filmic") -> None:
-    from ..io._png import write_png
     from ..image._tonemap import to_uint8, tonemap
+    from ..io._png import write_png
 
     img = np.asarray(img, np.float32)
     if img.ndim == 2:
@@ -225,3 +164,29 @@ def ensure_out(out: str | os.PathLike) -> Path:
         raise CLIError(f"--out {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+def envmap_path(arg: str | None) -> Path:
+    """``--envmap``: the given file, or the bundled map."""
+    from ..envmap import bundled_envmap_path
+
+    return Path(arg) if arg else bundled_envmap_path()
+
+
+# ------------------------------------------------------------------ the demo's material
+
+
+def demo_material(surface: stage.Surface):
+    """Ground-truth maps for ``relight simulate`` and ``relight demo``: skin-like
+    diffuse albedo, F0 = 0.028 (skin's refractive index 1.4) and a roughness
+    varying between 0.2 and 0.5 over the UVs. Returns float32
+    ``(rho_d [P, 3], f0 [P, 1], alpha [P, 1])`` for ``brdf.lambert_ggx``."""
+    uv = np.asarray(surface.uv, np.float64)
+    u, v = uv[:, 0], uv[:, 1]
+    rho_d = np.stack([0.62 + 0.08 * np.sin(7 * u) * np.cos(5 * v),
+                      0.42 + 0.06 * np.cos(6 * v + 1.0),
+                      0.33 + 0.05 * np.sin(4 * u + 3 * v)], axis=1)
+    f0 = np.full((len(u), 1), 0.028)
+    alpha = 0.35 + 0.15 * np.sin(9 * u + 2.0) * np.sin(7 * v)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return f32(rho_d), f32(f0), f32(alpha[:, None])

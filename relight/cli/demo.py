@@ -6,56 +6,55 @@ from __future__ import annotations
 
 import json
 import time
-from importlib import resources
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
-import brdf
-import stage
-
-from ..fitting import _driver as _fit
-from ..envmap._latlong import load_envmap
-from ..envmap._weights import light_weights
-from ..io._atomic import atomic_write_bytes
-from ..io._exr import write_exr
-from ..io._png import write_png
-from ..render._olat import relight_olat
-from ..image._preview import dilate, texture_view
-from ..image._tonemap import tonemap, to_uint8
+from ._common import bar, demo_material, envmap_path
 
 
-def bundled_envmap_path() -> Path:
-    """The bundled CC0 'Venice Sunset' map (Poly Haven), 1024x512 Radiance HDR."""
-    return Path(str(resources.files("relight.data").joinpath("venice_sunset_1k.hdr")))
+def add_parser(sub) -> None:
+    d = sub.add_parser("demo", help="simulate, fit and relight the bundled head scan (built-in defaults)")
+    d.add_argument("--out", default="relight-demo", help="output folder (default: ./relight-demo)")
+    d.add_argument("--resolution", type=int, default=128, help="texel grid size (default: 128)")
+    d.add_argument("--envmap", default=None,
+                   help="environment map (.hdr/.exr, lat-long); default: bundled Venice Sunset")
+    d.add_argument("--image-size", type=int, default=384, help="preview image size in pixels (default: 384)")
+    d.add_argument("--quiet", action="store_true", help="no progress bars")
+    d.set_defaults(func=run)
 
 
-def demo_material(surface: stage.Surface):
-    """Ground-truth maps for the demo: skin-like diffuse albedo, F0 = 0.028
-    (skin's refractive index 1.4) and a roughness varying between 0.2 and 0.5."""
-    uv = np.asarray(surface.uv, np.float64)
-    u, v = uv[:, 0], uv[:, 1]
-    rho_d = np.stack([0.62 + 0.08 * np.sin(7 * u) * np.cos(5 * v),
-                      0.42 + 0.06 * np.cos(6 * v + 1.0),
-                      0.33 + 0.05 * np.sin(4 * u + 3 * v)], axis=1)
-    f0 = np.full((len(u), 1), 0.028)
-    alpha = 0.35 + 0.15 * np.sin(9 * u + 2.0) * np.sin(7 * v)
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return f32(rho_d), f32(f0), f32(alpha[:, None])
+def run(args) -> int:
+    from ..envmap import load_envmap
 
-
-def _bar(total, desc, quiet):
-    return tqdm(total=total, desc=desc, unit="it", leave=True, disable=quiet, dynamic_ncols=True)
+    if args.envmap is not None:
+        load_envmap(args.envmap)  # refuse a missing or corrupt map before minutes of simulation and fitting
+    report = run_demo(Path(args.out), resolution=args.resolution, envmap=args.envmap,
+                      image_size=args.image_size, quiet=args.quiet)
+    print(f"wrote {args.out}/ (report.md, report.json, settings.json, *.exr, *.png)")
+    print(f"diffuse albedo error (median) {100 * report['diffuse_albedo_rel_error_median']:.3f}%, "
+          f"roughness error (median) {100 * report['roughness_rel_error_median']:.3f}%, "
+          f"relit PSNR {report['relit_from_fit_vs_image_based_psnr_db']:.1f} dB")
+    return 0
 
 
 def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image_size: int = 384,
              quiet: bool = False) -> dict:
     """Run the whole demo into ``out``; returns the report as a dict."""
+    import brdf
+    import stage
+    from brdf import atomic_write_text
+
+    from ..envmap import light_weights, load_envmap
+    from ..fitting import _driver as _fit
+    from ..image._preview import dilate, texture_view
+    from ..image._tonemap import to_uint8, tonemap
+    from ..io import write_exr, write_png
+    from ..render import relight_olat
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    envmap = Path(envmap) if envmap is not None else bundled_envmap_path()
+    envmap = envmap_path(None if envmap is None else str(envmap))
     times = {}
     t0 = time.perf_counter()
     mesh = stage.load_head()
@@ -65,8 +64,8 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
     times["geometry_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with _bar(surface.num_samples * rig.num_lights, "visibility (rays)", quiet) as bar:
-        light_vis = stage.light_visibility(stage_mesh := mesh, surface, rig, chunk=1 << 18, progress=bar.update)
+    with bar(surface.num_samples * rig.num_lights, "visibility (rays)", quiet, leave=True) as b:
+        light_vis = stage.light_visibility(stage_mesh := mesh, surface, rig, chunk=1 << 18, progress=b)
     cam_vis = stage.camera_visibility(stage_mesh, surface, [camera])
     times["visibility_s"] = time.perf_counter() - t0
     seen = np.nonzero(cam_vis[0])[0]
@@ -77,13 +76,13 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
     rho_true, f0_true, alpha_true = demo_material(surface)
     truth = brdf.lambert_ggx(rho_true, f0_true, alpha_true)
     t0 = time.perf_counter()
-    with _bar(rig.num_lights, "simulate (lights)", quiet) as bar:
-        capture = stage.simulate(surface, rig, [camera], truth, light_vis, cam_vis, progress=bar.update)
+    with bar(rig.num_lights, "simulate (lights)", quiet, leave=True) as b:
+        capture = stage.simulate(surface, rig, [camera], truth, light_vis, cam_vis, progress=b)
     times["simulate_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with _bar(surface.num_samples, "fit (texels)", quiet) as bar:
-        fitted = _fit.fit(capture, surface, progress=bar.update)
+    with bar(surface.num_samples, "fit (texels)", quiet, leave=True) as b:
+        fitted = _fit.fit(capture, surface, progress=b)
     times["fit_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -134,18 +133,15 @@ def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image
         else:
             shown = np.repeat(img, 3, axis=-1) if img.shape[-1] == 1 else img
             write_png(out / f"{name}_view.png", to_uint8(tonemap(shown, curve="none")))
-    side = [to_uint8(tonemap(views[k], exposure=exposure, curve="filmic")) for k in ("relit_image_based", "relit_from_fit")]
+    side = [to_uint8(tonemap(views[k], exposure=exposure, curve="filmic"))
+            for k in ("relit_image_based", "relit_from_fit")]
     write_png(out / "preview.png", np.concatenate(side, axis=1))
     settings = {"command": "relight demo", "out": str(out), "resolution": resolution, "envmap": str(envmap),
                 "image_size": image_size, "rig": "light_stage_x", "camera": "look_at (0, 0, 1300) mm, fov 11 deg"}
-    _write_text(out / "settings.json", json.dumps(settings, indent=2))
-    _write_text(out / "report.json", json.dumps(report, indent=2))
-    _write_text(out / "report.md", _report_md(report))
+    atomic_write_text(out / "settings.json", json.dumps(settings, indent=2))
+    atomic_write_text(out / "report.json", json.dumps(report, indent=2))
+    atomic_write_text(out / "report.md", _report_md(report))
     return report
-
-
-def _write_text(path: Path, text: str) -> None:
-    atomic_write_bytes(path, lambda fh: fh.write(text.encode()))
 
 
 def _report_md(r: dict) -> str:
@@ -156,7 +152,8 @@ def _report_md(r: dict) -> str:
         f"texel grid {r['texel_resolution']}^2, environment `{Path(r['envmap']).name}`.", "",
         "| quantity (fit against the simulated truth, noise-free) | median | 95th percentile |",
         "| --- | --- | --- |",
-        f"| diffuse albedo relative error | {r['diffuse_albedo_rel_error_median']:.2e} | {r['diffuse_albedo_rel_error_p95']:.2e} |",
+        f"| diffuse albedo relative error | {r['diffuse_albedo_rel_error_median']:.2e} | "
+        f"{r['diffuse_albedo_rel_error_p95']:.2e} |",
         f"| roughness relative error | {r['roughness_rel_error_median']:.2e} | {r['roughness_rel_error_p95']:.2e} |",
         "",
         f"Failed samples: {100 * r['fit_failed_fraction']:.2f}%. Median LM steps: {r['fit_steps_median']:.0f}.",

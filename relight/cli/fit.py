@@ -7,19 +7,16 @@ import inspect
 import time
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 import stage
+from brdf import atomic_write_text
 
-from ._common import (CLIError, bar, camera_to_json, cameras_from_json, ensure_out, rig_to_json, texel_surface,
-                          write_json, write_preview, write_settings)
 from ..fitting._driver import SOLVERS as METHODS
-from ..io._capture import open_capture
-from ..materials._maps import MODELS, SUBSURFACE
-from ..io._exr import write_exr
 from ..image._preview import texture_view
-from ..io._texture_set import is_map_set, read_maps, write_maps, write_text_atomic
+from ..io import is_map_set, load_texel_capture, read_maps, texture_set, write_exr, write_texture_set
+from ..materials._maps import MODELS, SUBSURFACE
+from ._common import CLIError, bar, ensure_out, envmap_path, write_json, write_preview, write_settings
 
 # relight.fit's rungs (subsurface is fitted afterwards by fit_subsurface) and the ladder.
 FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
@@ -41,47 +38,6 @@ def add_parser(sub) -> None:
     p.add_argument("--envmap", default=None, help="environment map for the Mitsuba scene (default: bundled)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
-
-
-def load_texel_capture(folder, quiet: bool = True):
-    """A texel-space capture folder -> (capture over the samples with data, surface, mesh, surface info, reader)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such capture folder")
-    reader = open_capture(folder)
-    where = folder / "capture.json"
-    info = reader.metadata.get("surface")
-    if reader.metadata.get("space") != "texel" or not isinstance(info, dict):
-        raise CLIError(f"{where}: not a texel-space capture (metadata.space = 'texel' and metadata.surface, as "
-                       "`relight simulate` writes, are needed to rebuild the surface)")
-    mesh, full = texel_surface(info, info.get("resolution"), where=str(where))
-    if tuple(full.resolution) != tuple(reader.sample_shape):
-        raise CLIError(f"{where}: images are {reader.sample_shape} but the texel grid is {full.resolution}")
-    idx = np.asarray(full.texel_index)
-    V, L = reader.n_views, reader.n_lights
-    rad = np.zeros((V, L, len(idx), reader.n_channels), np.float32)
-    valid = np.zeros((V, L, len(idx)), bool)
-    with bar(V * L, "read capture (images)", quiet) as b:
-        for v in range(V):
-            for light, r, m in reader.iter_lights(v):
-                rad[v, light] = r[idx]
-                valid[v, light] = True if m is None else m[idx]
-                b.update(1)
-    keep = np.nonzero(valid.any(axis=(0, 1)))[0]
-    if len(keep) == 0:
-        raise CLIError(f"{folder}: no valid observation on any texel of the mesh")
-    surface = full.subset(keep)
-    rig = _rig(reader)
-    cams = cameras_from_json(reader.cameras, folder / "cameras.json")
-    capture = stage.Capture(radiance=jnp.asarray(rad[:, :, keep]), mask=jnp.asarray(valid[:, :, keep]), rig=rig,
-                            cameras=cams)
-    return capture, surface, mesh, info, reader
-
-
-def _rig(reader):
-    from ._common import rig_from_json
-
-    return rig_from_json(reader.rig, reader.folder / "rig.json")
 
 
 def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = False) -> dict:
@@ -109,41 +65,44 @@ def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = Fa
 def run(args) -> int:
     import relight
 
-    from .demo import bundled_envmap_path
-    from ..io._mitsuba import write_mitsuba_scene
+    from ..envmap import load_envmap
+    from ..io import write_mitsuba_scene
 
-    envmap = Path(args.envmap) if args.envmap else bundled_envmap_path()
-    from ..envmap._latlong import load_envmap
-
+    envmap = envmap_path(args.envmap)
     load_envmap(envmap)  # refuse a missing or corrupt map before the fit, not after
     kwargs = fit_kwargs(relight.fit, args.method, args.model, args.normals)
     times = {}
     t0 = time.perf_counter()
-    capture, surface, mesh, info, reader = load_texel_capture(args.capture, args.quiet)
+    capture_dir = Path(args.capture)
+    with bar(None, "read capture (images)", args.quiet) as b:
+        capture, surface, mesh, metadata = load_texel_capture(capture_dir, progress=b)
+    info = metadata["surface"]
     times["read_s"] = time.perf_counter() - t0
     out = ensure_out(args.out)
 
     t0 = time.perf_counter()
     with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
-        fitted = relight.fit(capture, surface, progress=b.update, **kwargs)
+        fitted = relight.fit(capture, surface, progress=b, **kwargs)
     maps = fitted.maps(surface)
     times["fit_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    cams_json = [camera_to_json(c, f"cam{i:03d}") for i, c in enumerate(capture.cameras)]
+    cams = [stage.camera_to_dict(c, f"cam{i:03d}") for i, c in enumerate(capture.cameras)]
     # The capture's rig travels with the maps: `relight render --method rig` uses it by default.
-    write_json(out / "rig.json", rig_to_json(capture.rig))
-    write_maps(out, maps, surface, surface_info=info,
-               metadata={"capture": str(Path(args.capture).resolve()), "fit_options": kwargs, "cameras": cams_json,
-                         "rig": "rig.json", "source": "relight fit"})
-    textures, _ = read_maps(out)
+    stage.save_rig(out / "rig.json", capture.rig)
+    textures = texture_set(maps, surface, surface_info=info,
+                           metadata={"capture": str(capture_dir.resolve()), "fit_options": kwargs, "cameras": cams,
+                                     "rig": "rig.json", "source": "relight fit"})
+    write_texture_set(out, textures)
     cam = capture.cameras[0]
     if cam.orthographic:
         scene = None
     else:
         scene = write_mitsuba_scene(out, mesh, textures, cam, envmap)
     # Previews: texel-space maps and the maps as the capture's first camera sees them.
-    for name, img in (("albedo", textures.albedo), ("specular", textures.specular), ("roughness", textures.alpha[..., :1])):
+    texel_previews = (("albedo", textures.albedo), ("specular", textures.specular),
+                      ("roughness", textures.alpha[..., :1]))
+    for name, img in texel_previews:
         write_preview(out / f"{name}.png", img, exposure=0.0, curve="none")
     views = texture_view(mesh, cam, {"albedo": textures.albedo, "roughness": textures.alpha[..., :1]})
     for name, img in views.items():
@@ -153,7 +112,7 @@ def run(args) -> int:
 
     report = _report(fitted, surface, Path(args.capture), times)
     write_json(out / "report.json", report)
-    write_text_atomic(out / "report.md", _report_md(report))
+    atomic_write_text(out / "report.md", _report_md(report))
     write_settings(out, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
                    fit_options=kwargs, mesh=info, samples=surface.num_samples,
                    mitsuba_scene=None if scene is None else str(scene))
@@ -174,10 +133,8 @@ def _report(fitted, surface, capture_dir: Path, times) -> dict:
         "timings_s": {k: round(v, 3) for k, v in times.items()},
     }
     if getattr(fitted, "model", None) is not None:
-        from ..materials._maps import MODELS
-
         counts = np.bincount(np.asarray(fitted.model).reshape(-1), minlength=len(MODELS))
-        r["model_counts"] = {m: int(c) for m, c in zip(MODELS, counts)}
+        r["model_counts"] = {m: int(c) for m, c in zip(MODELS, counts, strict=False)}
     if hasattr(fitted, "unresolved"):
         r["unresolved_fraction"] = float(np.mean(np.asarray(fitted.unresolved)))
     truth_dir = capture_dir / "truth"
@@ -211,6 +168,7 @@ def _report_md(r: dict) -> str:
                   f"{a['roughness_rel_error_p95']:.2e} |", ""]
     if "model_counts" in r:
         lines += ["Texels per model: " + ", ".join(f"{k} {v}" for k, v in r["model_counts"].items() if v) + ".", ""]
-    lines += ["| stage | seconds |", "| --- | --- |", *[f"| {k[:-2]} | {v:.2f} |" for k, v in r["timings_s"].items()], ""]
+    lines += ["| stage | seconds |", "| --- | --- |",
+              *[f"| {k[:-2]} | {v:.2f} |" for k, v in r["timings_s"].items()], ""]
     return "\n".join(lines)
 

@@ -9,10 +9,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (CLIError, bar, cameras_from_json, ensure_out, parse_cameras, texel_surface, write_preview,
-                          write_settings, auto_exposure)
-from ..io._exr import write_exr
+import stage
+
+from ..io import write_exr
 from ..render._methods import METHODS
+from ._common import (
+    CLIError,
+    auto_exposure,
+    bar,
+    ensure_out,
+    envmap_path,
+    parse_cameras,
+    parse_rig,
+    write_preview,
+    write_settings,
+)
 
 # "rig": the environment seen through a light rig's lights (Debevec et al. 2000)
 # -- the only method for a capture (its own OLAT images), and for a map set the
@@ -34,7 +45,8 @@ def add_parser(sub) -> None:
                    help="lsx | dome:N | rig.json: the rig of --method rig for a map set (default: the rig of the "
                         "capture the maps were fitted from)")
     p.add_argument("--camera", default=None,
-                   help="front | cameras.json (default: the capture's first camera / the one the maps were fitted from)")
+                   help="front | cameras.json (default: the capture's first camera / the one the maps were "
+                        "fitted from)")
     p.add_argument("--image-size", type=int, default=256, help="pixels of the 'front' camera (default: 256)")
     p.add_argument("--rotate", type=float, default=0.0, help="rotate the environment about +y by DEG degrees")
     p.add_argument("--frames", type=int, default=1, help="a turntable of N environment rotations over 360 degrees")
@@ -43,7 +55,7 @@ def add_parser(sub) -> None:
 
 
 def input_kind(path: Path) -> str:
-    from ..io._texture_set import is_map_set
+    from ..io import is_map_set
 
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such input folder")
@@ -63,8 +75,7 @@ def _angles(rotate: float, frames: int) -> np.ndarray:
 
 
 def run(args) -> int:
-    from .demo import bundled_envmap_path
-    from ..envmap._latlong import load_envmap
+    from ..envmap import load_envmap
 
     if args.frames < 1:
         raise CLIError(f"--frames {args.frames}: must be at least 1")
@@ -79,7 +90,7 @@ def run(args) -> int:
         raise CLIError(f"--rig {args.rig}: a capture is relit with its own rig; --rig applies to map sets")
     if args.rig is not None and args.method != "rig":
         raise CLIError(f"--rig {args.rig}: only --method rig uses a rig")
-    envmap = Path(args.envmap) if args.envmap else bundled_envmap_path()
+    envmap = envmap_path(args.envmap)
     env = load_envmap(envmap)
     angles = _angles(args.rotate, args.frames)
     t0 = time.perf_counter()
@@ -92,14 +103,11 @@ def run(args) -> int:
     # One exposure for the whole turntable, so frames are comparable.
     exposure = auto_exposure(np.stack(frames))
     names = ["relit"] if len(frames) == 1 else [f"relit_{k:03d}" for k in range(len(frames))]
-    for name, img in zip(names, frames):
+    for name, img in zip(names, frames, strict=True):
         write_exr(out / f"{name}.exr", img)
         write_preview(out / f"{name}.png", img, exposure=exposure)
     write_settings(out, "render", args, input_kind=kind, envmap=str(envmap), method=method,
-                   rotations_deg=angles.tolist(), camera={"width": camera.width, "height": camera.height,
-                                                          "K": np.asarray(camera.K).tolist(),
-                                                          "R": np.asarray(camera.R).tolist(),
-                                                          "t": np.asarray(camera.t).tolist()},
+                   rotations_deg=angles.tolist(), camera=stage.camera_to_dict(camera),
                    preview_exposure_stops=exposure, seconds=round(seconds, 3),
                    outputs=[f"{n}.exr" for n in names])
     if not args.quiet:
@@ -107,80 +115,49 @@ def run(args) -> int:
     return 0
 
 
-def _image_based(src: Path, env, angles, args):
-    """Relight the capture's texel radiance and show it through ``--camera``.
+def _rotations(angles) -> np.ndarray:
+    """[K, 3, 3] rotations of the environment about +y by ``angles`` (degrees)."""
+    from ..envmap import rotation_matrix
 
-    Each texel takes its relit radiance from the capture view that sees it
-    and whose camera direction (from the rig centre) is closest to the render
-    camera's. From a camera between the captured ones the view-dependent
-    (specular) part is that of the nearest captured view (an image-based
-    capture cannot do better)."""
-    from .fit import load_texel_capture
-    from ..envmap._latlong import rotation_matrix
-    from ..envmap._weights import rotation_sweep_weights
-    from ..render._olat import relight_olat_sweep
-    from ..image._preview import dilate, texture_view
-
-    capture, surface, mesh, _, _ = load_texel_capture(src, args.quiet)
-    camera = parse_cameras(args.camera, mesh, args.image_size, default=capture.cameras[:1])[0]
-    rig = capture.rig
-    rots = np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
+    return np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
                      for a in angles])
-    weights = rotation_sweep_weights(env, rig.directions, rig.center_irradiance, rots)
-    relit = np.asarray(relight_olat_sweep(capture.radiance, weights))  # [K, V, P, C]
-    relit = relit[:, _nearest_view(capture, camera)[None, :], np.arange(surface.num_samples)[None, :]][:, 0]
-    H, W = surface.resolution
-    covered = np.zeros((H, W), bool)
-    covered.reshape(-1)[np.asarray(surface.texel_index)] = True
-    frames = []
+
+
+def _image_based(src: Path, env, angles, args):
+    """Relight the capture's texel radiance and show it through ``--camera``
+    (``relight.render.image_based_view``: each texel from the nearest captured
+    view that sees it)."""
+    from ..io import load_texel_capture
+    from ..render import image_based_view
+
+    with bar(None, "read capture (images)", args.quiet) as b:
+        capture, surface, mesh, _ = load_texel_capture(src, progress=b)
+    camera = parse_cameras(args.camera, mesh, args.image_size, default=capture.cameras[:1])[0]
     with bar(len(angles), "render (frames)", args.quiet) as b:
-        for k in range(len(angles)):
-            tex = dilate(surface.to_texture(relit[k]), covered)
-            frames.append(texture_view(mesh, camera, {"relit": tex})["relit"])
-            b.update(1)
-    return frames, camera, "rig (the capture's own OLAT images)"
-
-
-def _nearest_view(capture, camera) -> np.ndarray:
-    """[P] index of the view that sees each sample (any valid light) from the
-    direction closest to ``camera``'s (both seen from the rig centre)."""
-    def unit(c):
-        c = np.asarray(c, np.float64)
-        return c / max(np.linalg.norm(c), 1e-12)
-
-    target = unit(camera.center)
-    score = np.array([unit(c.center) @ target for c in capture.cameras])  # [V]
-    seen = np.asarray(capture.mask).any(axis=1)  # [V, P]
-    return np.argmax(np.where(seen, score[:, None], -np.inf), axis=0)
+        frames = image_based_view(capture, surface, mesh, camera, env, rotations=_rotations(angles),
+                                  progress=b)
+    return list(frames), camera, "rig (the capture's own OLAT images)"
 
 
 def _model_based(src: Path, env, angles, args):
-    from ._common import parse_rig, read_json, rig_from_json
-    from ..envmap._latlong import rotation_matrix
-    from ..io._texture_set import read_maps
+    from ..envmap import rotation_matrix
+    from ..io import load_texel_maps
 
     try:
         from ..render import render_view
     except ImportError as err:
         raise CLIError(f"{src}: model-based rendering needs relight.render.render_view, which this build lacks "
                        f"({err})") from None
-    textures, info = read_maps(src)
-    mesh, full = texel_surface(info, textures.resolution, where=str(src / "maps.json"))
-    cov = textures.coverage.reshape(-1)[np.asarray(full.texel_index)]
-    surface = full.subset(np.nonzero(cov)[0])
-    maps = textures.maps(surface)
-    meta = textures.info.get("metadata", {})
-    cams = meta.get("cameras")
-    default = cameras_from_json(cams, src / "maps.json")[:1] if cams else None
-    camera = parse_cameras(args.camera, mesh, args.image_size, default=default)[0]
+    textures, maps, surface, mesh, recorded_cams, recorded_rig = load_texel_maps(src)
+    camera = parse_cameras(args.camera, mesh, args.image_size, default=recorded_cams[:1] or None)[0]
     settings = {}
     rig_desc = None
     if args.method == "rig":
         if args.rig is not None:
             settings["rig"], rig_desc = parse_rig(args.rig)
-        elif meta.get("rig") and (src / meta["rig"]).is_file():
-            settings["rig"] = rig_from_json(read_json(src / meta["rig"], "rig file"), src / meta["rig"])
-            rig_desc = f"the capture's rig ({src / meta['rig']})"
+        elif recorded_rig is not None:
+            settings["rig"] = recorded_rig
+            rig_desc = f"the capture's rig ({src / textures.info['metadata']['rig']})"
     frames = []
     with bar(len(angles), "render (frames)", args.quiet) as b:
         for a in angles:
@@ -188,7 +165,7 @@ def _model_based(src: Path, env, angles, args):
             if a % 360.0 != 0.0:
                 rot = np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
             img = render_view(maps, surface, mesh, camera, env, method=args.method,
-                              progress=None if args.quiet else b.set_postfix_str, rotation=rot, **settings)
+                              progress=None if args.quiet else b, rotation=rot, **settings)
             frames.append(np.asarray(img, np.float32))
             b.update(1)
     return frames, camera, args.method + ("" if rig_desc is None else f" ({rig_desc})")

@@ -12,14 +12,10 @@ import numpy as np
 import brdf
 import stage
 
-from ._common import (CLIError, bar, camera_to_json, mesh_spec, parse_cameras, parse_rig, rig_to_json,
-                          texel_surface, write_preview, write_settings)
-from .demo import demo_material
-from ..io._capture import write_capture
-from ..io._exr import write_exr
-from ..materials._maps import material_maps
 from ..image._preview import dilate, texture_view
-from ..io._texture_set import write_maps
+from ..io import mesh_spec, texel_surface, write_capture, write_exr, write_maps
+from ..materials._maps import material_maps
+from ._common import CLIError, bar, demo_material, parse_cameras, parse_rig, write_preview, write_settings
 
 
 def add_parser(sub) -> None:
@@ -50,7 +46,8 @@ def _noise(spec: str, read_noise: float):
     try:
         exposure = float(spec)
     except ValueError:
-        raise CLIError(f"--noise {spec}: expected 'none' or a positive exposure (electrons per unit radiance)") from None
+        raise CLIError(f"--noise {spec}: expected 'none' or a positive exposure "
+                       "(electrons per unit radiance)") from None
     if not exposure > 0 or not np.isfinite(exposure):
         raise CLIError(f"--noise {spec}: the exposure must be a positive number")
     if read_noise < 0:
@@ -77,7 +74,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     with bar(full.num_samples * rig.num_lights, "visibility (rays)", args.quiet) as b:
-        light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=b.update)
+        light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=b)
     cam_vis = stage.camera_visibility(mesh, full, cams)
     seen = np.nonzero(np.any(cam_vis, axis=0))[0]
     if len(seen) == 0:
@@ -90,7 +87,7 @@ def run(args) -> int:
     truth = brdf.lambert_ggx(rho, f0, alpha)
     t0 = time.perf_counter()
     with bar(rig.num_lights * len(cams), "simulate (lights)", args.quiet) as b:
-        capture = stage.simulate(surface, rig, cams, truth, light_vis, cam_vis, progress=b.update)
+        capture = stage.simulate(surface, rig, cams, truth, light_vis, cam_vis, progress=b)
     if sensor is not None:
         capture = stage.sense(capture, sensor, jax.random.PRNGKey(args.seed))
     times["simulate_s"] = time.perf_counter() - t0
@@ -113,9 +110,9 @@ def run(args) -> int:
                 "writer": "relight simulate"}
     if out.is_dir() and not any(out.iterdir()):
         out.rmdir()  # an empty folder may be replaced by the capture
+    out.parent.mkdir(parents=True, exist_ok=True)  # --out is created, as in every command
     t0 = time.perf_counter()
-    write_capture(out, radiance, rig_to_json(rig), [camera_to_json(c, f"cam{i:03d}") for i, c in enumerate(cams)],
-                  valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
+    write_capture(out, radiance, rig, cams, valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
     write_maps(out / "truth", material_maps(surface, rho, f0, alpha), surface, surface_info=spec,
                metadata={"source": "relight simulate ground truth"})
     # Preview: view 0 with every light on at once.

@@ -3,6 +3,7 @@ camera): lat-long maps, per-pixel solid angles, rotation, and the light weights
 that turn a map into a weighted sum of one-light-at-a-time images
 (``relit = sum_l w_l * OLAT_l``, Debevec et al. 2000). See docs/relight_io.md."""
 
+from ._bundled import bundled_envmap_path as bundled_envmap_path
 from ._latlong import EnvMap as EnvMap
 from ._latlong import direction_to_latlong as direction_to_latlong
 from ._latlong import envmap_integral as envmap_integral
@@ -53,6 +54,7 @@ __all__ = [
     "angular_solid_angles",
     "angular_to_latlong",
     "barycentric_cell_integrals",
+    "bundled_envmap_path",
     "cubemap_directions",
     "cubemap_solid_angles",
     "cubemap_to_latlong",

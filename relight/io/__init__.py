@@ -1,5 +1,7 @@
 """File IO for the relighting tool: OpenEXR, Radiance HDR, PFM, PNG, capture
-folders and DiLiGenT-style multi-light data. All writes are atomic; bad input
+folders and DiLiGenT-style multi-light data, texture sets, and texel-space
+captures and map sets back to ``stage`` objects (``load_texel_capture``,
+``load_texel_maps``). All writes are atomic (``brdf.atomic_path``); bad input
 raises ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
 See docs/relight_io.md for the formats and conventions."""
 
@@ -24,15 +26,27 @@ from ._exr import write_exr_parts as write_exr_parts
 from ._hdr import read_hdr as read_hdr
 from ._hdr import read_hdr_header as read_hdr_header
 from ._hdr import write_hdr as write_hdr
+from ._json import jsonable as jsonable
+from ._json import read_json as read_json
+from ._json import write_json as write_json
+from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
 from ._png import read_png as read_png
 from ._png import write_png as write_png
-from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
+from ._texel import TexelCapture as TexelCapture
+from ._texel import TexelMaps as TexelMaps
+from ._texel import load_texel_capture as load_texel_capture
+from ._texel import load_texel_maps as load_texel_maps
+from ._texel import mesh_spec as mesh_spec
+from ._texel import spec_mesh as spec_mesh
+from ._texel import texel_surface as texel_surface
 from ._texture_set import TextureSet as TextureSet
 from ._texture_set import is_map_set as is_map_set
 from ._texture_set import read_maps as read_maps
+from ._texture_set import texture_set as texture_set
 from ._texture_set import write_maps as write_maps
+from ._texture_set import write_texture_set as write_texture_set
 
 __all__ = [
     "CaptureData",
@@ -40,10 +54,16 @@ __all__ = [
     "DiligentData",
     "ExrPart",
     "ImageFormatError",
+    "TexelCapture",
+    "TexelMaps",
     "TextureSet",
     "check_radiance",
     "exr_header",
     "is_map_set",
+    "jsonable",
+    "load_texel_capture",
+    "load_texel_maps",
+    "mesh_spec",
     "open_capture",
     "read_capture",
     "diligent_capture",
@@ -52,17 +72,23 @@ __all__ = [
     "read_exr_channels",
     "read_exr_parts",
     "read_hdr",
-    "read_maps",
     "read_hdr_header",
+    "read_json",
+    "read_maps",
     "read_pfm",
     "read_png",
+    "spec_mesh",
+    "texel_surface",
+    "texture_set",
     "write_capture",
     "write_exr",
     "write_exr_channels",
     "write_exr_parts",
     "write_hdr",
+    "write_json",
     "write_maps",
     "write_mitsuba_scene",
     "write_pfm",
     "write_png",
+    "write_texture_set",
 ]

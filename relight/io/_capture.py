@@ -10,7 +10,8 @@ Layout (format version 1)::
                              "metadata": {...}}           (exposure, noise, units, ...)
     folder/rig.json         {"directions" | "positions": [[x, y, z], ...] (L rows),
                              "intensities": [[r, g, b], ...] (L rows), ...}  any extra keys kept
-    folder/cameras.json     [{"name": ..., ...}, ...]    (V entries; free-form dicts)
+                            (stage.rig_to_dict's schema when written from a stage.Rig)
+    folder/cameras.json     [{"name": ..., ...}, ...]    (V entries: stage.camera_to_dict, or free-form)
     folder/views/v000/l000.exr ...                       channels R, G, B [+ "valid"]
 
 Each EXR holds one view under one light: ``[H, W]`` per channel with
@@ -29,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import os
 import shutil
 import tempfile
@@ -38,8 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
+import stage
+
 from ._errors import ImageFormatError, check_radiance
 from ._exr import read_exr_channels, write_exr_channels
+from ._json import read_json, write_json
 
 __all__ = ["CaptureData", "CaptureReader", "open_capture", "read_capture", "write_capture"]
 
@@ -75,24 +78,6 @@ class CaptureData:
     views: tuple[int, ...]
 
 
-def _jsonable(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if hasattr(obj, "__array__"):  # jax arrays
-        return np.asarray(obj).tolist()
-    return obj
-
-
-def _write_json(path: Path, obj) -> None:
-    path.write_text(json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n")
-
-
 def _rig_light_count(rig: Mapping, where) -> int:
     for key in ("directions", "positions"):
         if key in rig:
@@ -105,6 +90,9 @@ def _rig_light_count(rig: Mapping, where) -> int:
 
 @contextlib.contextmanager
 def _atomic_folder(folder: Path) -> Iterator[Path]:
+    """Yield a temporary folder next to ``folder``; on success swap it into place
+    (an existing capture is moved aside, then deleted). The project's only
+    folder-level swap: single files go through ``brdf.atomic_path``."""
     parent = folder.parent if str(folder.parent) else Path(".")
     if not parent.is_dir():
         raise FileNotFoundError(f"{folder}: cannot write, folder {parent} does not exist")
@@ -128,8 +116,8 @@ def _atomic_folder(folder: Path) -> Iterator[Path]:
 def write_capture(
     folder: str | os.PathLike,
     radiance: np.ndarray,
-    rig: Mapping,
-    cameras: Sequence[Mapping] | None = None,
+    rig: Mapping | stage.Rig,
+    cameras: Sequence[Mapping | stage.Camera] | None = None,
     valid: np.ndarray | None = None,
     metadata: Mapping | None = None,
     sample_shape: tuple[int, int] | None = None,
@@ -140,9 +128,12 @@ def write_capture(
 
     Args:
         radiance: ``[V, L, P, C]`` OLAT radiance (finite, non-negative).
-        rig: dict with ``directions`` or ``positions`` ``[L, 3]`` and
-            ``intensities`` ``[L, C]`` (extra keys, e.g. ``solid_angles``, kept).
-        cameras: one JSON-able dict per view (default: ``{"name": "view<i>"}``).
+        rig: a ``stage.Rig`` (stored as ``stage.rig_to_dict``), or a dict with
+            ``directions`` or ``positions`` ``[L, 3]`` and ``intensities``
+            ``[L, C]`` (extra keys, e.g. ``solid_angles``, kept).
+        cameras: one ``stage.Camera`` (stored as ``stage.camera_to_dict``, named
+            cam000, cam001, ...) or JSON-able dict per view (default:
+            ``{"name": "view<i>"}``).
         valid: optional ``[V, L, P]`` bool mask.
         metadata: JSON-able dict (exposure, noise model, units...).
         sample_shape: ``(H, W)`` with ``H * W = P``; default ``(1, P)``.
@@ -150,6 +141,11 @@ def write_capture(
         channels: channel names (default R, G, B for C = 3, Y for C = 1).
     """
     folder = Path(folder)
+    if isinstance(rig, stage.Rig):
+        rig = stage.rig_to_dict(rig)
+    if cameras is not None:
+        cameras = [stage.camera_to_dict(c, f"cam{i:03d}") if isinstance(c, stage.Camera) else c
+                   for i, c in enumerate(cameras)]
     rad = np.asarray(radiance)
     if rad.ndim != 4:
         raise ValueError(f"{folder}: radiance must be [V, L, P, C], got shape {rad.shape}")
@@ -158,14 +154,16 @@ def write_capture(
     if _rig_light_count(rig, folder) != n_lights:
         raise ValueError(f"{folder}: rig has {_rig_light_count(rig, folder)} lights but radiance has {n_lights}")
     if "intensities" in rig and np.asarray(rig["intensities"]).shape[0] != n_lights:
-        raise ValueError(f"{folder}: rig intensities have {np.asarray(rig['intensities']).shape[0]} rows, expected {n_lights}")
+        raise ValueError(f"{folder}: rig intensities have {np.asarray(rig['intensities']).shape[0]} rows, "
+                         f"expected {n_lights}")
     cams = list(cameras) if cameras is not None else [{"name": f"view{v}"} for v in range(n_views)]
     if len(cams) != n_views:
         raise ValueError(f"{folder}: {len(cams)} cameras given for {n_views} views")
     shape = tuple(sample_shape) if sample_shape is not None else (1, n_samples)
     if len(shape) != 2 or shape[0] * shape[1] != n_samples:
         raise ValueError(f"{folder}: sample_shape {shape} does not hold {n_samples} samples")
-    names = list(channels) if channels is not None else {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(n_ch)
+    default_names = {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}
+    names = list(channels) if channels is not None else default_names.get(n_ch)
     if names is None or len(names) != n_ch or "valid" in names:
         raise ValueError(f"{folder}: need {n_ch} channel names (not 'valid'), got {names}")
     if valid is not None:
@@ -182,9 +180,9 @@ def write_capture(
                     chans["valid"] = valid[v, l].reshape(shape).astype(np.float16)
                 header = {"relight.view": v, "relight.light": l}
                 write_exr_channels(path, chans, header=header, half=half)
-        _write_json(tmp / "rig.json", rig)
-        _write_json(tmp / "cameras.json", cams)
-        _write_json(
+        write_json(tmp / "rig.json", rig, indent=1)
+        write_json(tmp / "cameras.json", cams, indent=1)
+        write_json(
             tmp / "capture.json",
             {
                 "format": _FORMAT,
@@ -198,16 +196,12 @@ def write_capture(
                 "files": _FILES,
                 "metadata": dict(metadata or {}),
             },
+            indent=1,
         )
 
 
 def _load_json(path: Path):
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing (a capture folder needs capture.json, rig.json and cameras.json)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ImageFormatError(f"{path}: invalid JSON ({err})") from None
+    return read_json(path, "a capture folder needs capture.json, rig.json and cameras.json")
 
 
 class CaptureReader:
@@ -229,7 +223,8 @@ class CaptureReader:
         if info.get("format") != _FORMAT:
             raise ImageFormatError(f"{where}: not a relight capture (format {info.get('format')!r})")
         if info.get("version", 0) > _VERSION:
-            raise ImageFormatError(f"{where}: format version {info.get('version')} is newer than this reader ({_VERSION})")
+            raise ImageFormatError(f"{where}: format version {info.get('version')} is newer than this reader "
+                                   f"({_VERSION})")
         try:
             self.n_views = int(info["n_views"])
             self.n_lights = int(info["n_lights"])
@@ -254,7 +249,8 @@ class CaptureReader:
             if key in rig:
                 rig[key] = np.asarray(rig[key], np.float64)
         if "intensities" in rig and rig["intensities"].shape[0] != self.n_lights:
-            raise ImageFormatError(f"{rig_path}: 'intensities' has {rig['intensities'].shape[0]} rows, expected {self.n_lights}")
+            raise ImageFormatError(f"{rig_path}: 'intensities' has {rig['intensities'].shape[0]} rows, "
+                                   f"expected {self.n_lights}")
         self.rig = rig
         cam_path = self.folder / "cameras.json"
         self.cameras = _load_json(cam_path)
@@ -262,13 +258,28 @@ class CaptureReader:
             n = len(self.cameras) if isinstance(self.cameras, list) else "no list of"
             raise ImageFormatError(f"{cam_path}: {n} cameras but capture.json declares {self.n_views} views")
         missing = [
-            str(self.path(v, l)) for v in range(self.n_views) for l in range(self.n_lights) if not self.path(v, l).is_file()
+            str(self.path(v, l))
+            for v in range(self.n_views)
+            for l in range(self.n_lights)
+            if not self.path(v, l).is_file()
         ]
         if missing:
             raise ImageFormatError(
                 f"{self.folder}: {len(missing)} light image(s) missing for {self.n_lights} lights in the rig, "
                 f"first: {missing[0]}"
             )
+
+    def stage_rig(self) -> stage.Rig:
+        """``rig.json`` as a ``stage.Rig`` (``stage.rig_from_dict``: either rig
+        schema); ValueError naming the file and the field if it is not one."""
+        return stage.rig_from_dict(self.rig, str(self.folder / "rig.json"))
+
+    def stage_cameras(self) -> tuple[stage.Camera, ...]:
+        """``cameras.json`` as ``stage.Camera`` s (``stage.camera_from_dict``, each
+        entry); ValueError naming the file, the camera and the field if an entry
+        is not a camera (a free-form dict)."""
+        where = self.folder / "cameras.json"
+        return tuple(stage.camera_from_dict(c, f"{where}: camera {i}") for i, c in enumerate(self.cameras))
 
     @property
     def shape(self) -> tuple[int, int, int, int]:

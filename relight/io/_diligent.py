@@ -106,7 +106,8 @@ def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = 
         path = folder / names[i]
         img = read_png(path)
         if img.dtype != np.uint16 or img.shape[-1] != 3:
-            raise ImageFormatError(f"{path}: expected a 16-bit RGB PNG, got {img.dtype} with {img.shape[-1]} channel(s)")
+            raise ImageFormatError(f"{path}: expected a 16-bit RGB PNG, got {img.dtype} with "
+                                   f"{img.shape[-1]} channel(s)")
         if images is None:
             images = np.empty((len(index), *img.shape), np.float32)
         elif img.shape != images.shape[1:]:
@@ -128,10 +129,12 @@ def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = 
 
         mat = loadmat(gt_path)
         if "Normal_gt" not in mat:
-            raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable (found {sorted(k for k in mat if not k.startswith('__'))})")
+            found = sorted(k for k in mat if not k.startswith("__"))
+            raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable (found {found})")
         normals = np.asarray(mat["Normal_gt"], np.float32)
         if normals.shape != (*images.shape[1:3], 3):
-            raise ImageFormatError(f"{gt_path}: Normal_gt has shape {normals.shape}, expected {(*images.shape[1:3], 3)}")
+            raise ImageFormatError(f"{gt_path}: Normal_gt has shape {normals.shape}, "
+                                   f"expected {(*images.shape[1:3], 3)}")
     check_radiance(images, folder, "DiLiGenT images")
     return DiligentData(
         images=images,

@@ -363,7 +363,8 @@ def write_exr(
         raise ValueError(f"{path}: image must be [H, W] or [H, W, C], got shape {image.shape}")
     names = list(channels) if channels is not None else _default_names(image.shape[-1])
     if len(names) != image.shape[-1] or len(set(names)) != len(names):
-        raise ValueError(f"{path}: {len(names)} distinct channel names needed for {image.shape[-1]} channels, got {names}")
+        raise ValueError(f"{path}: {len(names)} distinct channel names needed for {image.shape[-1]} channels, "
+                         f"got {names}")
     write_exr_channels(path, {n: image[..., i] for i, n in enumerate(names)}, header, half, tile_size, compression)
 
 
@@ -383,6 +384,6 @@ def write_exr_parts(
         raise ValueError(f"{path}: part names must be distinct, got {names}")
     exr_parts = [
         OpenEXR.Part(_encode_header(p.header, compression, tile_size), _prepare_channels(path, p.channels, half), n)
-        for p, n in zip(parts, names)
+        for p, n in zip(parts, names, strict=True)
     ]
     _write_file(path, OpenEXR.File(exr_parts))

@@ -167,7 +167,8 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
             and not buf[pos + 2] & 0x80
         ):
             if (buf[pos + 2] << 8 | buf[pos + 3]) != width:
-                raise ImageFormatError(f"{path}: RLE scanline {y} declares width {buf[pos + 2] << 8 | buf[pos + 3]}, header says {width}")
+                raise ImageFormatError(f"{path}: RLE scanline {y} declares width "
+                                       f"{buf[pos + 2] << 8 | buf[pos + 3]}, header says {width}")
             lines[y], pos = _decode_new_rle(buf, pos + 4, width, path, y)
             prev = lines[y, -1]
         else:
@@ -207,7 +208,7 @@ def _encode_rle_component(row: np.ndarray) -> bytes:
     lengths = np.diff(np.concatenate([starts, [width]]))
     out = bytearray()
     lit_from = 0
-    for s, n in zip(starts[lengths >= 4].tolist(), lengths[lengths >= 4].tolist()):
+    for s, n in zip(starts[lengths >= 4].tolist(), lengths[lengths >= 4].tolist(), strict=True):
         for a in range(lit_from, s, 128):  # literal bytes before this run
             b = min(a + 128, s)
             out.append(b - a)

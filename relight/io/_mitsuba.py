@@ -53,9 +53,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..materials._maps import BLINN_PHONG
 from ._atomic import atomic_path, atomic_write_bytes
 from ._exr import write_exr
-from ..materials._maps import BLINN_PHONG
 
 __all__ = ["write_mitsuba_scene"]
 

@@ -32,8 +32,10 @@ value for the model index, renormalised for normals) so a bilinear lookup at
 a chart border does not blend in the empty background. ``coverage.exr``
 tells fitted texels from padding.
 
-Every file is written atomically (``relight.io.write_exr``); ``maps.json`` is
-written last. Reading validates everything and raises ``FileNotFoundError``
+``texture_set(maps, surface)`` builds the set in memory (a :class:`TextureSet`,
+what reading the files back gives); ``write_texture_set`` writes one and
+``write_maps`` does both. Every file is written atomically
+(``relight.io.write_exr``); ``maps.json`` is written last. Reading validates everything and raises ``FileNotFoundError``
 or ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
 """
 
@@ -47,13 +49,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_write_bytes
+from ..image._preview import dilate
+from ..materials._maps import MODELS, MaterialMaps, material_maps
 from ._errors import ImageFormatError
 from ._exr import read_exr_channels, write_exr_channels
-from ..materials._maps import MODELS, MaterialMaps, material_maps
-from ..image._preview import dilate
+from ._json import jsonable, read_json, write_json
 
-__all__ = ["TextureSet", "read_maps", "write_maps", "is_map_set"]
+__all__ = ["TextureSet", "is_map_set", "read_maps", "texture_set", "write_maps", "write_texture_set"]
 
 FORMAT = "relight-maps"
 VERSION = 1
@@ -148,49 +150,21 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return np.where(n > 1e-12, v / np.where(n > 1e-12, n, 1.0), np.array([0.0, 0.0, 1.0], v.dtype))
 
 
-def _jsonable(x):
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, Path):
-        return str(x)
-    if isinstance(x, np.generic):
-        return x.item()
-    if hasattr(x, "__array__"):
-        return np.asarray(x).tolist()
-    return x
+def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
+                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> TextureSet:
+    """The texture set of ``maps`` (over ``surface``'s samples), in memory: what
+    :func:`write_maps` writes and :func:`read_maps` reads back (to the float32
+    rounding of the EXR files), without touching the disk.
 
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    atomic_write_bytes(path, lambda fh: fh.write(text.encode()))
-
-
-def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
-               surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> Path:
-    """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``.
-
-    Args:
-        folder: created if missing; existing files of the set are replaced
-            (each atomically; maps.json last).
-        maps: :class:`relight.MaterialMaps` with one row per surface sample.
-        surface: the ``stage.Surface`` the maps are over (texel grid, frame).
-        metadata: JSON-able extras stored under maps.json ``metadata``.
-        surface_info: how to rebuild the surface (mesh path, scale, centring),
-            stored under maps.json ``surface``; resolution is added.
-        gutter: rings of padding texels filled around each UV chart.
-
-    Returns the folder.
+    Args: as :func:`write_maps`. ``info`` holds what maps.json will hold.
     """
-    folder = Path(folder)
     P = surface.num_samples
     if maps.num_samples != P:
-        raise ValueError(f"{folder}: maps hold {maps.num_samples} samples but the surface has {P}")
+        raise ValueError(f"maps hold {maps.num_samples} samples but the surface has {P}")
     h, w = surface.resolution
     idx = np.asarray(surface.texel_index)
     if len(np.unique(idx)) != len(idx):
-        raise ValueError(f"{folder}: surface has several samples on one texel; a texture set needs one per texel")
-    folder.mkdir(parents=True, exist_ok=True)
+        raise ValueError("surface has several samples on one texel; a texture set needs one per texel")
     valid = np.zeros((h, w), bool)
     valid.reshape(-1)[idx] = True
 
@@ -208,30 +182,6 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
 
     pad = lambda t: dilate(t, valid, gutter)  # noqa: E731
     renorm = lambda t: _unit(pad(t).astype(np.float64)).astype(np.float32)  # noqa: E731
-    albedo = pad(tex(maps.rho_d))
-    spec = pad(tex(maps.rho_s))
-    alpha_t = pad(tex(alpha, fill=1.0))
-    nts_t = renorm(tex(n_ts))
-    nw_t = renorm(tex(n_world))
-    tw_t = renorm(tex(t_world))
-    mfp = pad(tex(maps.mfp))
-    model = _dilate_nearest(surface.to_texture(np.asarray(maps.model, np.int32)), valid, gutter)
-    iso = np.sqrt(alpha_t[..., 0] * alpha_t[..., 1])
-    enc = 0.5 * nts_t + 0.5
-
-    images = {
-        "albedo": {c: albedo[..., i] for i, c in enumerate("RGB")},
-        "specular": {"Y": spec[..., 0]},
-        "roughness": {"alpha_x": alpha_t[..., 0], "alpha_y": alpha_t[..., 1], "Y": iso},
-        "normal": {**{c: enc[..., i] for i, c in enumerate("RGB")},
-                   **{f"world.{c}": nw_t[..., i] for i, c in enumerate("RGB")},
-                   **{f"tangent.{c}": tw_t[..., i] for i, c in enumerate("RGB")}},
-        "mean_free_path": {c: mfp[..., i] for i, c in enumerate("RGB")},
-        "model": {"Y": model.astype(np.float32)},
-        "coverage": {"Y": valid.astype(np.float32)},
-    }
-    for key, (name, _) in FILES.items():
-        write_exr_channels(folder / name, images[key], header={"relight.map": key})
     info = {
         "format": FORMAT,
         "version": VERSION,
@@ -243,12 +193,72 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
                   "mean_free_path": "mm", "normal": "unit vectors; R,G,B tangent space encoded 0.5 n + 0.5",
                   "lengths": "mm"},
         "files": {key: {"file": name, "channels": list(ch)} for key, (name, ch) in FILES.items()},
-        "surface": {**_jsonable(dict(surface_info or {})), "resolution": [int(h), int(w)]},
-        "metadata": _jsonable(dict(metadata or {})),
+        "surface": {**jsonable(dict(surface_info or {})), "resolution": [int(h), int(w)]},
+        "metadata": jsonable(dict(metadata or {})),
         "writer": f"relight {_version()}",
     }
-    write_text_atomic(folder / "maps.json", json.dumps(info, indent=2, allow_nan=False) + "\n")
+    return TextureSet(
+        albedo=pad(tex(maps.rho_d)),
+        specular=pad(tex(maps.rho_s)),
+        alpha=pad(tex(alpha, fill=1.0)),
+        normal=renorm(tex(n_world)),
+        tangent=renorm(tex(t_world)),
+        normal_ts=renorm(tex(n_ts)),
+        mfp=pad(tex(maps.mfp)),
+        model=_dilate_nearest(surface.to_texture(np.asarray(maps.model, np.int32)), valid, gutter).astype(np.int32),
+        coverage=valid,
+        info=info,
+    )
+
+
+def write_texture_set(folder: str | os.PathLike, textures: TextureSet) -> Path:
+    """Write an in-memory :class:`TextureSet` (from :func:`texture_set`) to
+    ``folder`` in the layout of the module docstring: each file atomically,
+    maps.json (``textures.info``) last. Returns the folder."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    t = textures
+    iso = np.sqrt(t.alpha[..., 0] * t.alpha[..., 1])
+    enc = 0.5 * t.normal_ts + 0.5
+    images = {
+        "albedo": {c: t.albedo[..., i] for i, c in enumerate("RGB")},
+        "specular": {"Y": t.specular[..., 0]},
+        "roughness": {"alpha_x": t.alpha[..., 0], "alpha_y": t.alpha[..., 1], "Y": iso},
+        "normal": {**{c: enc[..., i] for i, c in enumerate("RGB")},
+                   **{f"world.{c}": t.normal[..., i] for i, c in enumerate("RGB")},
+                   **{f"tangent.{c}": t.tangent[..., i] for i, c in enumerate("RGB")}},
+        "mean_free_path": {c: t.mfp[..., i] for i, c in enumerate("RGB")},
+        "model": {"Y": t.model.astype(np.float32)},
+        "coverage": {"Y": t.coverage.astype(np.float32)},
+    }
+    for key, (name, _) in FILES.items():
+        write_exr_channels(folder / name, images[key], header={"relight.map": key})
+    write_json(folder / "maps.json", t.info)
     return folder
+
+
+def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
+               surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> Path:
+    """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``
+    (``write_texture_set(folder, texture_set(maps, surface, ...))``).
+
+    Args:
+        folder: created if missing; existing files of the set are replaced
+            (each atomically; maps.json last).
+        maps: :class:`relight.MaterialMaps` with one row per surface sample.
+        surface: the ``stage.Surface`` the maps are over (texel grid, frame).
+        metadata: JSON-able extras stored under maps.json ``metadata``.
+        surface_info: how to rebuild the surface (mesh path, scale, centring),
+            stored under maps.json ``surface``; resolution is added.
+        gutter: rings of padding texels filled around each UV chart.
+
+    Returns the folder.
+    """
+    try:
+        textures = texture_set(maps, surface, metadata=metadata, surface_info=surface_info, gutter=gutter)
+    except ValueError as err:
+        raise ValueError(f"{folder}: {err}") from None
+    return write_texture_set(folder, textures)
 
 
 def _version() -> str:
@@ -276,17 +286,13 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such map-set folder")
     meta_path = folder / "maps.json"
-    if not meta_path.is_file():
-        raise FileNotFoundError(f"{meta_path}: missing (a map-set folder needs maps.json and the EXR maps)")
-    try:
-        info = json.loads(meta_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ImageFormatError(f"{meta_path}: invalid JSON ({err})") from None
+    info = read_json(meta_path, "a map-set folder needs maps.json and the EXR maps")
     fmt = info.get("format") if isinstance(info, dict) else None
     if fmt != FORMAT:
         raise ImageFormatError(f"{meta_path}: not a relight map set (format {fmt!r}, expected {FORMAT!r})")
     if int(info.get("version", 0)) > VERSION:
-        raise ImageFormatError(f"{meta_path}: format version {info.get('version')} is newer than this reader ({VERSION})")
+        raise ImageFormatError(f"{meta_path}: format version {info.get('version')} is newer than this reader "
+                               f"({VERSION})")
     try:
         res = tuple(int(r) for r in info["resolution"])
         assert len(res) == 2 and min(res) > 0
@@ -315,7 +321,8 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         raise ImageFormatError(f"{folder / 'coverage.exr'}: covers no texel")
     model = np.rint(chans["model"]["Y"]).astype(np.int32)
     if np.any((model[coverage] < 0) | (model[coverage] >= len(MODELS))):
-        raise ImageFormatError(f"{folder / 'model.exr'}: model indices must be in 0..{len(MODELS) - 1} ({', '.join(MODELS)})")
+        raise ImageFormatError(f"{folder / 'model.exr'}: model indices must be in 0..{len(MODELS) - 1} "
+                               f"({', '.join(MODELS)})")
     alpha = st("roughness", ("alpha_x", "alpha_y"))
     if np.any(alpha[coverage] <= 0):
         raise ImageFormatError(f"{folder / 'roughness.exr'}: alpha must be > 0 on covered texels")

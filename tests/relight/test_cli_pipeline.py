@@ -199,7 +199,8 @@ def test_render_map_set_mismatched_resolution(pipeline, tmp_path, capsys):
     _, _, maps, _ = pipeline
     broken = tmp_path / "maps"
     shutil.copytree(maps, broken)
-    write_exr(broken / "roughness.exr", np.ones((RES * 2, RES * 2, 3), np.float32), channels=["alpha_x", "alpha_y", "Y"])
+    write_exr(broken / "roughness.exr", np.ones((RES * 2, RES * 2, 3), np.float32),
+              channels=["alpha_x", "alpha_y", "Y"])
     _render_view()
     assert main(["render", str(broken), "--out", str(tmp_path / "o"), "--quiet"]) == 1
     err = capsys.readouterr().err
@@ -291,25 +292,6 @@ def test_simulate_noise_and_camera_file(tmp_path):
     assert bright.sum() > 1000
     ratio = np.mean(diff[bright] ** 2) / np.mean(mean[bright] / 400.0)
     assert 0.85 < ratio < 1.15, ratio
-
-
-def test_image_based_render_takes_each_texel_from_the_nearest_seeing_view():
-    """Per texel, the capture view closest in direction to the render camera
-    among those that see it (so specular highlights come from the best view)."""
-    from types import SimpleNamespace
-
-    import stage
-    from relight.cli.render import _nearest_view
-
-    left, front, right = (stage.look_at((x, 0.0, 1300.0)) for x in (-900.0, 0.0, 900.0))
-    mask = np.zeros((3, 2, 4), bool)  # [V, L, P]
-    mask[:, :, 0] = True  # seen by all: the front view wins for a front camera
-    mask[0, 1, 1] = mask[2, 0, 1] = True  # seen by left and right only
-    mask[2, 0, 2] = True  # seen by right only
-    mask[0, 0, 3] = True  # seen by left only
-    capture = SimpleNamespace(cameras=(left, front, right), mask=mask)
-    near_right = stage.look_at((300.0, 0.0, 1300.0))
-    np.testing.assert_array_equal(_nearest_view(capture, near_right), [1, 2, 2, 0])
 
 
 def test_fit_refuses_a_corrupt_envmap_before_fitting(pipeline, tmp_path, capsys):

@@ -1,4 +1,5 @@
-"""Atomic writes (relight.io._atomic): a failure or a crash mid-write leaves the
+"""Atomic writes (brdf._atomic, the one implementation, re-exported by
+relight.io._atomic and used by every writer): a failure or a crash mid-write leaves the
 old file intact and no partial file under the target name; the new file's
 permissions are those of a plain open(): 0o666 less the umask, or the mode of
 the file it replaces."""
@@ -11,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from relight.io._atomic import _umask, atomic_path, atomic_write_bytes
+import brdf
+import relight.io._atomic
+from brdf._atomic import _umask, atomic_path, atomic_write_bytes, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -83,7 +86,7 @@ def test_crash_mid_write_leaves_old_file_intact(tmp_path):
     path.write_bytes(b"old contents")
     code = (
         "import os, sys\n"
-        "from relight.io._atomic import atomic_write_bytes\n"
+        "from brdf import atomic_write_bytes\n"
         "def w(fh):\n"
         "    fh.write(b'partial'); fh.flush(); os._exit(3)\n"
         "atomic_write_bytes(sys.argv[1], w)\n"
@@ -99,3 +102,34 @@ def test_crash_mid_write_leaves_old_file_intact(tmp_path):
 def test_missing_folder_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         atomic_write_bytes(tmp_path / "no" / "file.bin", lambda fh: fh.write(b"x"))
+
+
+def test_one_implementation_everywhere():
+    """relight.io re-exports brdf's writer; brdf exports it publicly."""
+    assert relight.io._atomic.atomic_path is brdf.atomic_path is atomic_path
+    assert relight.io._atomic.atomic_write_bytes is brdf.atomic_write_bytes is atomic_write_bytes
+    assert relight.io._atomic.atomic_write_text is brdf.atomic_write_text is atomic_write_text
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
+def test_every_layer_writes_with_the_umask(tmp_path, umask):
+    """The writers that had their own temporary-file code (stage.save_cameras,
+    stage.PackedMask.save, brdf.write_merl) now give the permissions of a plain
+    open() (mkstemp alone leaves 0o600), and leave no temporary file."""
+    import numpy as np
+
+    import stage
+
+    umask(0o022)
+    atomic_write_text(tmp_path / "note.txt", "h\u00e9llo\n")
+    assert (tmp_path / "note.txt").read_text(encoding="utf-8") == "h\u00e9llo\n"
+    stage.save_cameras(tmp_path / "cams.json", stage.look_at((0.0, 0.0, 1000.0)))
+    stage.save_rig(tmp_path / "rig.json", stage.geodesic_dome(0))
+    stage.PackedMask.pack(np.eye(9, dtype=bool)).save(tmp_path / "mask.npz")
+    stage.PackedMask.pack(np.eye(3, dtype=bool)).save(tmp_path / "mask.bin")  # no .npz appended
+    brdf.write_merl(tmp_path / "m.binary", np.full((3, 90, 90, 180), 0.1))
+    names = sorted(os.listdir(tmp_path))
+    assert names == ["cams.json", "m.binary", "mask.bin", "mask.npz", "note.txt", "rig.json"]
+    for n in names:
+        assert _mode(tmp_path / n) == 0o644, n
+    np.testing.assert_array_equal(stage.PackedMask.load(tmp_path / "mask.bin").unpack(), np.eye(3, dtype=bool))

@@ -9,7 +9,7 @@ import pytest
 
 import relight
 import stage
-from relight.io import ImageFormatError, read_maps, write_exr, write_maps
+from relight.io import ImageFormatError, read_maps, texture_set, write_exr, write_maps, write_texture_set
 
 RES = 16
 
@@ -162,3 +162,25 @@ def test_write_refuses_wrong_sample_count(head_surface, tmp_path):
     maps = _random_maps(head_surface)
     with pytest.raises(ValueError, match="samples"):
         write_maps(tmp_path / "x", maps, head_surface.subset(np.arange(10)))
+
+
+def test_in_memory_set_is_what_reading_the_files_gives(written, head_surface, tmp_path):
+    """``texture_set`` (what ``relight fit`` now uses instead of writing the maps
+    and reading them back) equals ``read_maps`` of the written set, to the
+    float32 rounding of the tangent-space normal's 0.5 n + 0.5 encoding."""
+    folder, maps = written
+    info = {"bundled": "head", "path": str(stage.head_mesh_path()), "scale": stage.HEAD_SCALE_MM, "center": True}
+    mem = texture_set(maps, head_surface, metadata={"note": "test"}, surface_info=info)
+    disk, _ = read_maps(folder)
+    for name in ("albedo", "specular", "alpha", "normal", "tangent", "mfp", "model", "coverage"):
+        a, b = getattr(mem, name), getattr(disk, name)
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    np.testing.assert_allclose(mem.normal_ts, disk.normal_ts, atol=2e-7)  # 2 ulp of the encoding at 1
+    assert mem.info == {**disk.info, "writer": mem.info["writer"]}
+    # Writing the in-memory set gives the same files.
+    write_texture_set(tmp_path / "again", mem)
+    again, _ = read_maps(tmp_path / "again")
+    for name in ("albedo", "alpha", "model", "coverage"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(disk, name), err_msg=name)
+    assert json.loads((tmp_path / "again" / "maps.json").read_text()) == disk.info

@@ -46,3 +46,34 @@ def test_camera_visibility_hides_the_back_and_the_occluded():
     assert cv[0, (r > 36.0) & inside_view].all()
     # From below, the plane faces away: nothing is seen.
     assert not cv[1].any()
+
+
+def test_occluder_is_the_ray_caster_of_light_visibility():
+    """stage.Occluder.visible along the lights' directions (distant) or with the
+    distances to them (near field) is light_visibility; inactive pairs and
+    directions below the tangent plane are False and cast no ray."""
+    m = merge(plane(size=200.0, n=20, y=0.0), uv_sphere(radius=30.0, center=(0.0, 60.0, 0.0), with_uv=False))
+    s = stage.texel_samples(m, 32)
+    occ = stage.Occluder(m, s)
+    idx = np.arange(s.num_samples)
+    dirs = np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, 1], [-1, -1, -1]]) / np.array([1, 1, 1, np.sqrt(3)])[:, None]
+    far = stage.make_rig(dirs, near_field=False)
+    vis = occ.visible(idx, np.broadcast_to(dirs[None], (len(idx), 4, 3)))
+    done = []
+    np.testing.assert_array_equal(vis, stage.light_visibility(m, s, far, chunk=400, progress=lambda *a: done.append(a)))
+    # stage.Progress: (sample, light) pairs done, from 0 to all of them, block by block (100 samples x 4 lights).
+    P4 = 4 * s.num_samples
+    assert done[0] == ("light visibility", 0, P4) and done[-1] == ("light visibility", P4, P4) and len(done) > 3
+    near = stage.make_rig(np.array([[0.0, 200, 0], [150, 10, 0], [0, 10, 150], [-1, -1, -1]]), near_field=True)
+    to = np.asarray(near.position, np.float64)[None] - occ.origin[:, None]
+    dist = np.linalg.norm(to, axis=-1)
+    np.testing.assert_array_equal(occ.visible(idx, to / dist[..., None], distance=dist),
+                                  stage.light_visibility(m, s, near))
+    active = np.zeros((len(idx), 4), bool)
+    active[::2, 0] = True
+    v = occ.visible(idx, np.broadcast_to(dirs[None], (len(idx), 4, 3)), active=active)
+    np.testing.assert_array_equal(v, vis & active)
+    # A segment that stops short of the sphere is clear; one through it is not.
+    top = np.array([[0.0, 200.0, 0.0]])
+    assert occ.segments_clear(top, top - [[0.0, 50.0, 0.0]])[0]
+    assert not occ.segments_clear(top, np.array([[0.0, 0.1, 0.0]]))[0]
