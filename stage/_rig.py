@@ -17,10 +17,13 @@ from importlib import resources
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 from scipy.spatial import SphericalVoronoi
 
+from brdf import fibonacci_sphere as brdf_fibonacci_sphere
 from brdf import safe_normalize
+
+from ._forward import incident_light
 
 # Two lights closer than this (as directions from the centre) cannot be told
 # apart by a Voronoi partition; scipy's construction also breaks down there.
@@ -109,23 +112,14 @@ class Rig(eqx.Module):
         return self.intensity / d2
 
     def incident(
-        self, points: Float[Array, "*batch 3"]
+        self, points: Float[ArrayLike, "*batch 3"]
     ) -> tuple[Float[Array, "light *batch 3"], Float[Array, "light *batch channel"]]:
         """World direction toward each light and the irradiance at normal incidence
-        it delivers at each point (inverse-square law for near-field lights)."""
-        points = jnp.asarray(points)
-        extra = (1,) * (points.ndim - 1)
-        pos = self.position.reshape((-1,) + extra + (3,))
-        inten = self.intensity.reshape((-1,) + extra + (self.intensity.shape[-1],))
-        if self.near_field:
-            delta = pos - points[None]
-            d2 = jnp.sum(delta * delta, axis=-1, keepdims=True)
-            return safe_normalize(delta), inten / d2
-        wi = jnp.broadcast_to(safe_normalize(pos), (self.num_lights,) + points.shape)
-        irr = jnp.broadcast_to(inten, (self.num_lights,) + points.shape[:-1] + (inten.shape[-1],))
-        return wi, irr
+        it delivers at each point (inverse-square law for near-field lights):
+        ``stage.incident_light`` of this rig's fields."""
+        return incident_light(self.position, self.intensity, self.near_field, points)
 
-    def subset(self, index) -> "Rig":
+    def subset(self, index) -> Rig:
         """The rig restricted to the lights ``index`` (solid angles recomputed)."""
         index = np.asarray(index)
         pos = np.asarray(self.position)[index]
@@ -188,7 +182,7 @@ def _icosphere(subdivisions: int) -> np.ndarray:
     for _ in range(subdivisions):
         cache: dict[tuple[int, int], int] = {}
 
-        def mid(a, b):
+        def mid(a, b, cache=cache):
             k = (min(a, b), max(a, b))
             if k not in cache:
                 m = verts[a] + verts[b]
@@ -265,7 +259,8 @@ def _calibration_array(calibration, shape) -> np.ndarray:
     try:
         cal = np.broadcast_to(cal, shape)
     except ValueError:
-        raise ValueError(f"calibration must be a scalar, [C={shape[1]}] or [L, C]={shape}, got {np.shape(calibration)}") from None
+        raise ValueError(f"calibration must be a scalar, [C={shape[1]}] or [L, C]={shape}, "
+                         f"got {np.shape(calibration)}") from None
     if not np.all(np.isfinite(cal)) or np.any(cal < 0):
         raise ValueError("calibration gains must be finite and non-negative")
     return cal
@@ -281,7 +276,8 @@ def calibrate(rig: Rig, gains) -> Rig:
     calibrated rig. Geometry and solid angles are unchanged.
     """
     g = _calibration_array(gains, tuple(rig.intensity.shape))
-    return Rig(position=rig.position, intensity=jnp.asarray(np.asarray(rig.intensity, np.float64) * g, rig.intensity.dtype),
+    inten = jnp.asarray(np.asarray(rig.intensity, np.float64) * g, rig.intensity.dtype)
+    return Rig(position=rig.position, intensity=inten,
                solid_angle=rig.solid_angle, near_field=rig.near_field)
 
 
@@ -292,6 +288,7 @@ def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False
     Fibonacci and latitude-longitude lattices"), z_k = 1 - (2k + 1)/n,
     phi_k = 2 pi k / golden ratio, with the stage's y axis as the pole.
 
+    The directions are ``brdf.fibonacci_sphere(n, axis=1, hemisphere)``.
     With ``hemisphere`` the points cover only the upper half (y > 0). Distant
     lights delivering ``irradiance`` by default; with ``near_field``, point
     sources at ``radius_mm`` (mm) giving that irradiance at the centre.
@@ -299,14 +296,7 @@ def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False
     n = int(n)
     if n < 4:
         raise ValueError(f"a Fibonacci sphere rig needs n >= 4 lights, got {n}")
-    k = np.arange(n, dtype=np.float64)
-    golden = (1 + 5**0.5) / 2
-    y = 1 - (2 * k + 1) / n
-    if hemisphere:
-        y = 1 - (k + 0.5) / n
-    r = np.sqrt(np.maximum(1 - y * y, 0))
-    phi = 2 * np.pi * k / golden
-    dirs = np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=1)
+    dirs = brdf_fibonacci_sphere(n, axis=1, hemisphere=hemisphere)
     inten = irradiance * (radius_mm**2 if near_field else 1.0)
     return make_rig(dirs * radius_mm, inten, near_field=near_field)
 
@@ -345,13 +335,15 @@ def directional_rig(directions_path, intensities_path=None) -> Rig:
     norm = np.linalg.norm(d, axis=1)
     bad = np.nonzero(np.abs(norm - 1) > 1e-3)[0]
     if len(bad):
-        raise ValueError(f"{directions_path}: light direction on line {bad[0] + 1} has length {norm[bad[0]]:.4f}, expected 1")
+        raise ValueError(f"{directions_path}: light direction on line {bad[0] + 1} has length "
+                         f"{norm[bad[0]]:.4f}, expected 1")
     if intensities_path is None:
         inten = np.ones((len(d), 3))
     else:
         inten = _read_table(intensities_path, "light intensities", 3)
         if len(inten) != len(d):
-            raise ValueError(f"{intensities_path}: {len(inten)} intensity rows for {len(d)} light directions in {directions_path}")
+            raise ValueError(f"{intensities_path}: {len(inten)} intensity rows for {len(d)} light directions "
+                             f"in {directions_path}")
     try:
         return make_rig(d / norm[:, None], inten, near_field=False)
     except ValueError as exc:
@@ -407,7 +399,7 @@ def gonioreflectometer(theta_i_deg, theta_o_deg, phi_o_deg=(0.0,), phi_i_deg: fl
     T, Pp = np.meshgrid(to, po, indexing="ij")
     eyes = _arc_points(T.ravel(), Pp.ravel(), sensor_radius_mm)
     cams = []
-    for e, t in zip(eyes, T.ravel()):
+    for e, t in zip(eyes, T.ravel(), strict=True):
         # At normal view, 'up' along +y is parallel to the view direction: use -z then.
         up = (0.0, 1.0, 0.0) if t > 1e-6 else (0.0, 0.0, -1.0)
         cams.append(look_at(e, (0.0, 0.0, 0.0), up=up, fov_deg=sensor_fov_deg,

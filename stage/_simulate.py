@@ -16,6 +16,12 @@ analyser on the camera. Single-surface (specular) reflection keeps the
 polarisation: the parallel analyser passes it, the crossed one blocks it.
 Diffuse and subsurface light leaves depolarised: either analyser passes half.
 So parallel - cross = specular and 2 x cross = diffuse (Ma et al. 2007, sec. 4).
+
+The physics is ``stage._forward`` (``incident_light``, ``to_local``,
+``reflected_radiance``, ``subsurface_irradiance``, ``subsurface_exitance``);
+this module only schedules it in (light x sample) chunks and applies the
+visibility and the polariser weights. Everything but the ray-cast visibility
+is traced, so ``jax.grad`` goes through ``simulate``.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from brdf import safe_normalize
 
 from ._camera import Camera
 from ._capture import Capture
+from ._forward import reflected_radiance_lights, subsurface_exitance, subsurface_irradiance
 from ._rig import Rig
 from ._surface import Surface
 from ._visibility import PackedMask, as_mask
@@ -77,53 +84,44 @@ def split_material(material):
     return None, material
 
 
-def _shade(material: "brdf.AbstractBRDF", wi, wo, irradiance, visible):
-    """radiance [Lc, P, C] = f(wi, wo) cos_i E V for a chunk of lights (vmap over lights)."""
-
-    def one_light(wi_l, e_l, v_l):
-        f = material(wi_l, wo)
-        cos_i = jnp.maximum(wi_l[..., 2:3], 0)
-        return jnp.where(v_l[:, None], f * cos_i * e_l, 0)
-
-    return jax.vmap(one_light)(wi, irradiance, visible)
-
-
-_shade_chunk = eqx.filter_jit(_shade)
-
-
-def _transmittance(cos, eta):
-    return 1.0 - brdf.fresnel_dielectric(jnp.clip(cos, 0.0, 1.0), eta)
+def _shade(material: brdf.AbstractBRDF, wi, wo, irradiance, visible):
+    """radiance [Lc, P, C] = f(wi, wo) cos_i E V for a chunk of lights
+    (``stage.reflected_radiance_lights``: one light at a time)."""
+    return reflected_radiance_lights(material, wi, wo, irradiance, visible)
 
 
 def _subsurface(sss: Subsurface, wi, wo, irradiance, lit, seen):
-    """L_ss [Lc, P, C]: Jensen 2001 eq. 5 through the diffusion operator."""
-    cos_i = jnp.maximum(wi[..., 2:3], 0)
-    e_in = jnp.where(lit[..., None], _transmittance(cos_i, sss.eta) * cos_i * irradiance, 0)
-    m = jax.vmap(lambda e: sss.operator.apply(sss.profile, e))(e_in)
-    t_out = _transmittance(jnp.maximum(wo[:, 2:3], 0), sss.eta)[None]
-    return jnp.where(seen[None, :, None], t_out / jnp.pi * m, 0)
+    """L_ss [Lc, P, C]: Jensen 2001 eq. 5 through the diffusion operator
+    (``stage.subsurface_irradiance``, the operator, ``stage.subsurface_exitance``)."""
+    e_in = subsurface_irradiance(wi, irradiance, sss.eta, lit)
+    # The operator computes in its own dtype (its distances'); the capture stays in the irradiance's.
+    op_dt = sss.operator.distance.dtype
+    m = jax.vmap(lambda e: sss.operator.apply(sss.profile, e.astype(op_dt)).astype(e.dtype))(e_in)
+    return subsurface_exitance(m, wo[None], sss.eta, seen[None])
 
 
 @eqx.filter_jit
-def _fused_chunk(terms, subsurface, sss_weight, rig_chunk: Rig, surface: Surface, wo_world, light_vis, seen):
+def _fused_chunk(terms, subsurface, sss_weight, rig_chunk: Rig, surface: Surface, wo_world, light_vis, cam_vis):
     """One (light chunk x sample chunk) block in one XLA computation: incident
     directions and irradiance, the change to the shading frame, every reflection
-    term and the subsurface term. ``light_vis`` [Lc, Pc] (ray-cast), ``seen``
-    [Pc] (camera). Returns (radiance [Lc, Pc, C], lit [Lc, Pc]: cos_i > 0)."""
+    term and the subsurface term. ``light_vis`` [Lc, Pc] (ray-cast), ``cam_vis``
+    [Pc] (camera, ray-cast). Returns (radiance [Lc, Pc, C], mask [Lc, Pc]: lit,
+    seen and front-facing, cos_i > 0 and cos_o > 0)."""
     wi_world, irr = rig_chunk.incident(surface.position)
     wi = surface.to_local(wi_world)
     wo = surface.to_local(wo_world)
+    seen = cam_vis & (wo[:, 2] > 0)
     out = None
     visible = light_vis & seen[None]
     for m, wgt in terms:
-        r = _shade(m, wi, wo, irr, visible) * wgt
+        r = _shade(m, wi, wo, irr, visible) * wgt.astype(irr.dtype)
         out = r if out is None else out + r
     if subsurface is not None:
-        r = _subsurface(subsurface, wi, wo, irr, light_vis, seen) * sss_weight
+        r = _subsurface(subsurface, wi, wo, irr, light_vis, seen) * sss_weight.astype(irr.dtype)
         out = r if out is None else out + r
     if out is None:  # cross-polarised pure specular: nothing reaches the sensor
-        out = jnp.zeros(irr.shape, jnp.float32)
-    return out, wi[..., 2] > 0
+        out = jnp.zeros(irr.shape, irr.dtype)
+    return out, visible & (wi[..., 2] > 0)
 
 
 def _take_samples(tree, P: int, idx):
@@ -132,18 +130,35 @@ def _take_samples(tree, P: int, idx):
         lambda x: x[idx] if hasattr(x, "ndim") and x.ndim >= 1 and x.shape[0] == P else x, tree)
 
 
+def _traced(*trees) -> bool:
+    """True when any array leaf is a JAX tracer (``simulate`` under jax.grad, jvp, jit or vmap)."""
+    return any(isinstance(x, jax.core.Tracer) for t in trees for x in jax.tree_util.tree_leaves(t))
+
+
+def _check_in_front(v: int, cam: Camera, positions) -> None:
+    """ValueError when camera ``v`` has every sample behind it; skipped when the
+    camera or the positions are traced (the check needs concrete values)."""
+    z = cam.to_camera(positions)[:, 2]
+    if _traced(z):
+        return
+    if not np.any(np.asarray(z) > 0):
+        raise ValueError(f"camera {v} at {np.round(np.asarray(cam.center), 1).tolist()} has every surface sample "
+                         "behind it (check its R, t: it looks away from the surface)")
+
+
 def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibility, cv, light_chunk, sample_chunk,
             progress):
-    """Yield (view, light slice, sample slice, radiance [Lc, Pc, C], mask [Lc, Pc])."""
+    """Yield (view, light slice, sample slice, radiance [Lc, Pc, C], mask [Lc, Pc])
+    as JAX arrays. Only the chunk schedule and the precomputed (ray-cast,
+    concrete) visibility live on the host; everything that depends on the
+    material, the surface, the rig or the camera is JAX, so the chunks can be
+    traced (jax.grad / jax.jvp through ``simulate``)."""
     P, L = surface.num_samples, rig.num_lights
     # Weights as arrays: traced, so captures differing only in them share a compilation.
     terms = [(m, jnp.asarray(w, jnp.float32)) for m, w in terms]
     sss_weight = jnp.asarray(sss_weight, jnp.float32)
     for v, cam in enumerate(cameras):
-        z = np.asarray(cam.to_camera(surface.position))[:, 2]
-        if not np.any(z > 0):
-            raise ValueError(f"camera {v} at {np.round(np.asarray(cam.center), 1).tolist()} has every surface sample "
-                             "behind it (check its R, t: it looks away from the surface)")
+        _check_in_front(v, cam, surface.position)
         for ps0 in range(0, P, sample_chunk):
             ps1 = min(ps0 + sample_chunk, P)
             n_s = ps1 - ps0
@@ -156,8 +171,7 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
                 sub = surface.subset(idx)
                 sub_terms = [(_take_samples(m, P, idx), w) for m, w in terms]
             wo_world = cam.view_directions(sub.position)
-            front = np.asarray(sub.to_local(wo_world)[:, 2] > 0) & (cv[v] if idx is None else cv[v, idx])
-            front_j = jnp.asarray(front)
+            cv_j = jnp.asarray(cv[v] if idx is None else cv[v, idx])
             if idx is None:
                 lv_rows = light_visibility
             elif isinstance(light_visibility, PackedMask):
@@ -174,10 +188,9 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
                             near_field=rig.near_field)
                 lv_p = np.zeros((e - s + pad, lv_c.shape[1]), bool)
                 lv_p[: e - s] = lv_c
-                out, lit = _fused_chunk(sub_terms, subsurface, sss_weight, rig_c, sub, wo_world, jnp.asarray(lv_p), front_j)
-                out = out[: e - s, :n_s]
-                msk = (lv_c & front[None] & np.asarray(lit)[: e - s])[:, :n_s]
-                yield v, slice(s, e), slice(ps0, ps1), out, msk
+                out, msk = _fused_chunk(sub_terms, subsurface, sss_weight, rig_c, sub, wo_world, jnp.asarray(lv_p),
+                                        cv_j)
+                yield v, slice(s, e), slice(ps0, ps1), out[: e - s, :n_s], msk[: e - s, :n_s]
                 if progress is not None:
                     progress(e - s)
 
@@ -191,7 +204,8 @@ def _prepare(surface, rig, cameras, material, light_visibility, camera_visibilit
     if subsurface is not None and not isinstance(subsurface, Subsurface):
         raise ValueError("subsurface must be a stage.Subsurface(profile, operator, eta)")
     if subsurface is not None and subsurface.operator.num_samples != surface.num_samples:
-        raise ValueError(f"subsurface operator has {subsurface.operator.num_samples} samples, surface has {surface.num_samples}")
+        raise ValueError(f"subsurface operator has {subsurface.operator.num_samples} samples, "
+                         f"surface has {surface.num_samples}")
     P, L = surface.num_samples, rig.num_lights
     if isinstance(light_visibility, PackedMask):
         lv_shape = light_visibility.shape
@@ -220,11 +234,11 @@ def _prepare(surface, rig, cameras, material, light_visibility, camera_visibilit
     return cameras, light_visibility, cv, terms, sss_weight
 
 
-def simulate_chunks(surface: Surface, rig: Rig, cameras, material: "brdf.AbstractBRDF", light_visibility,
+def simulate_chunks(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | None, light_visibility,
                     camera_visibility, *, light_chunk: int = 64, sample_chunk: int = 1 << 16, progress=None,
                     polarization: str | None = None, subsurface: Subsurface | None = None):
     """``simulate`` as a stream: yields (view, light slice, sample slice,
-    radiance [Lc, Pc, C] (a JAX array), mask [Lc, Pc] (NumPy bool)) one chunk at a
+    radiance [Lc, Pc, C] (a JAX array), mask [Lc, Pc] (NumPy bool; JAX when traced)) one chunk at a
     time, so peak memory is one chunk (light_chunk x sample_chunk x C floats plus
     the per-chunk shading temporaries), not the capture. Arguments as ``simulate``;
     with ``subsurface`` the sample axis is not chunked (the operator couples samples)."""
@@ -232,11 +246,12 @@ def simulate_chunks(surface: Surface, rig: Rig, cameras, material: "brdf.Abstrac
                                                   camera_visibility, polarization, subsurface)
     P = surface.num_samples
     sample_chunk = P if subsurface is not None else max(1, int(sample_chunk))
-    yield from _chunks(surface, rig, cameras, terms, sss_weight, subsurface, lv, cv, int(light_chunk), sample_chunk,
-                       progress)
+    for v, ls, ps, rad, msk in _chunks(surface, rig, cameras, terms, sss_weight, subsurface, lv, cv, int(light_chunk),
+                                       sample_chunk, progress):
+        yield v, ls, ps, rad, (msk if _traced(msk) else np.asarray(msk))
 
 
-def simulate(surface: Surface, rig: Rig, cameras, material: "brdf.AbstractBRDF", light_visibility,
+def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | None, light_visibility,
              camera_visibility, *, light_chunk: int = 64, dtype=jnp.float32, progress=None,
              polarization: str | None = None, subsurface: Subsurface | None = None) -> Capture:
     """Simulate an OLAT capture of ``material`` (a brdf Module whose parameters
@@ -254,17 +269,40 @@ def simulate(surface: Surface, rig: Rig, cameras, material: "brdf.AbstractBRDF",
     ``Subsurface``; then ``material`` should hold only the surface (specular)
     reflection, since the diffuse part comes from the diffusion operator.
     Raises ValueError on mismatched shapes or a camera with every sample
-    behind it.
+    behind it (checked only when the camera and positions are concrete).
+
+    Differentiable: under ``jax.grad`` / ``jax.jvp`` / ``jax.jit`` the capture's
+    radiance is a function of the material's parameters (the brdf Module's
+    leaves), the surface's positions and shading frame, the rig's positions
+    and intensities, the cameras' R and t and the subsurface profile; the
+    visibility inputs are concrete and not differentiated (a shadow or
+    front-facing boundary moves with no derivative). Traced calls assemble
+    the capture with jnp (the output is held twice for a moment); concrete
+    calls fill a host buffer.
     """
     cameras, light_visibility, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                                 camera_visibility, polarization, subsurface)
     P, L = surface.num_samples, rig.num_lights
+    chunks = _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibility, cv, int(light_chunk), P,
+                     progress)
+    if _traced(surface, rig, cameras, material, subsurface):
+        # Under a transformation: assemble with jnp (JAX owns the buffers, the
+        # capture is differentiable). The sample axis is not chunked here, so
+        # each view is its light chunks in order.
+        views_r, views_m = [[] for _ in cameras], [[] for _ in cameras]
+        for v, _, _, rad, msk in chunks:
+            views_r[v].append(rad.astype(dtype))
+            views_m[v].append(msk)
+        radiance = jnp.stack([jnp.concatenate(r, axis=0) for r in views_r])
+        mask = jnp.stack([jnp.concatenate(m, axis=0) for m in views_m])
+        return Capture(radiance=radiance, mask=mask, rig=rig, cameras=cameras)
+    # Concrete: fill a host buffer chunk by chunk, so the peak beyond the
+    # output is one chunk (a concatenation would hold the capture twice).
     radiance = None
     mask = np.zeros((len(cameras), L, P), bool)
-    for v, ls, ps, rad, msk in _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibility, cv,
-                                       light_chunk, P, progress):
+    for v, ls, ps, rad, msk in chunks:
         if radiance is None:
             radiance = np.zeros((len(cameras), L, P, rad.shape[-1]), dtype)
-        radiance[v, ls, ps] = np.asarray(rad).astype(dtype)
-        mask[v, ls, ps] = msk
+        radiance[v, ls, ps] = np.asarray(rad.astype(dtype))
+        mask[v, ls, ps] = np.asarray(msk)
     return Capture(radiance=jnp.asarray(radiance), mask=jnp.asarray(mask), rig=rig, cameras=cameras)

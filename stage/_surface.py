@@ -5,8 +5,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
+from brdf import frame_from_normal_tangent
+
+from ._forward import to_local
 from ._mesh import Mesh
 
 
@@ -34,12 +37,10 @@ class Surface(eqx.Module):
     def num_samples(self) -> int:
         return self.position.shape[0]
 
-    def to_local(self, w: Float[Array, "*batch sample 3"]) -> Float[Array, "*batch sample 3"]:
-        """World directions to the shading frame (z = normal)."""
-        w = jnp.asarray(w)
-        lead = (1,) * (w.ndim - 2)
-        t, b, n = (x.reshape(lead + x.shape) for x in (self.tangent, self.bitangent, self.normal))
-        return jnp.stack([jnp.sum(w * t, -1), jnp.sum(w * b, -1), jnp.sum(w * n, -1)], axis=-1)
+    def to_local(self, w: Float[ArrayLike, "*batch sample 3"]) -> Float[Array, "*batch sample 3"]:
+        """World directions to the shading frame (z = normal): ``stage.to_local``
+        with this surface's (tangent, bitangent, normal)."""
+        return to_local(w, self.tangent, self.bitangent, self.normal)
 
     def to_texture(self, values, fill=0.0) -> np.ndarray:
         """Scatter per-sample values [P, ...] to a texture [H, W, ...] (``fill`` elsewhere)."""
@@ -49,26 +50,22 @@ class Surface(eqx.Module):
         out[np.asarray(self.texel_index)] = values
         return out.reshape((h, w) + values.shape[1:])
 
-    def subset(self, index) -> "Surface":
-        """The samples ``index`` (an index array or boolean mask over P)."""
+    def subset(self, index) -> Surface:
+        """The samples ``index`` (an index array or boolean mask over P, concrete).
+        Works on traced fields too (under jax.grad / jit), as a gather."""
         index = np.asarray(index)
-        take = lambda a: jnp.asarray(np.asarray(a)[index])  # noqa: E731
+        if index.dtype == bool:
+            index = np.flatnonzero(index)
+        take = lambda a: jnp.asarray(a)[index]  # noqa: E731
         return Surface(position=take(self.position), normal=take(self.normal), tangent=take(self.tangent),
                        bitangent=take(self.bitangent), uv=take(self.uv), area=take(self.area),
                        texel_index=take(self.texel_index), face=take(self.face), resolution=self.resolution,
                        barycentric=None if self.barycentric is None else take(self.barycentric))
 
 
-def _orthonormal_frame(n, t_guess):
-    t = t_guess - n * np.sum(n * t_guess, axis=1, keepdims=True)
-    bad = np.linalg.norm(t, axis=1) < 1e-8
-    if np.any(bad):
-        # A degenerate UV chart gives no tangent: any vector orthogonal to n will do.
-        alt = np.where(np.abs(n[bad, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        t[bad] = alt - n[bad] * np.sum(n[bad] * alt, axis=1, keepdims=True)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    b = np.cross(n, t)
-    return t, b
+# The texel sampler's Gram-Schmidt frame now lives in brdf (bit-for-bit the same);
+# the old name stays for stage/_image.py, which imports it from here.
+_orthonormal_frame = frame_from_normal_tangent
 
 
 def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surface:
@@ -132,7 +129,7 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
     world_area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
     uv_area = 0.5 * np.abs(det)
     ratio = np.where(uv_area > 1e-20, world_area / np.where(uv_area > 1e-20, uv_area, 1.0), 0.0)
-    t, b = _orthonormal_frame(nrm, dpdu[tri].copy())
+    t, b = frame_from_normal_tangent(nrm, dpdu[tri])
     area = ratio[tri] / (h * w)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return Surface(position=f32(pos), normal=f32(nrm), tangent=f32(t), bitangent=f32(b), uv=f32(uv),

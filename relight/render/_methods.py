@@ -47,32 +47,25 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import trimesh
 from jaxtyping import Array, Float
 
 import brdf
 import stage
 from brdf import safe_normalize
 
-from . import _fast as fast
 from ..envmap._latlong import EnvMap, latlong_directions, latlong_solid_angles, sample_latlong
 from ..envmap._sampling import envmap_pdf, envmap_sampler, sample_envmap
 from ..envmap._sh import sh_irradiance, sh_project
 from ..envmap._weights import light_weights, light_weights_barycentric
 from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE, LadderBRDF, MaterialMaps
+from . import _fast as fast
+from ._options import _BY_NAME, METHODS, AbstractMethod, resolve_method
 
 __all__ = ["METHODS", "DEFAULTS", "render_samples"]
 
-METHODS = ("rig", "dense", "fast", "reference")
-
-# Settings of each method and their defaults (documented in render_samples).
-DEFAULTS: dict[str, dict[str, Any]] = {
-    "rig": {"rig": None, "weights": "voronoi", "supersample": 1},
-    "dense": {"resolution": 32},
-    "fast": {"levels": fast.DEFAULT_LEVELS, "prefilter_rows": fast.DEFAULT_PREFILTER_ROWS,
-             "prefilter_samples": fast.DEFAULT_PREFILTER_SAMPLES, "ao_rays": 64, "lut_size": fast.DEFAULT_LUT_SIZE},
-    "reference": {"samples": 256, "env_fraction": 0.5, "heuristic": "power"},
-}
+# Settings of each method and their defaults (documented in render_samples and
+# on the method objects of relight.render._options, their one home).
+DEFAULTS: dict[str, dict[str, Any]] = {name: cls().settings() for name, cls in _BY_NAME.items()}
 _COMMON = {"chunk": None, "eta": 1.4, "operator": None, "rotation": None, "dtype": jnp.float32}
 
 # Directions (lights or environment pixels) per step of the scan inside the
@@ -90,9 +83,6 @@ _CHUNK_DIRECTIONAL = 4096
 _CHUNK_FAST = 16384
 # (sample x direction) pairs per chunk of the Monte Carlo kernel.
 _MC_PAIRS = 1 << 18
-# Ray origins are pushed off the surface by this fraction of the mesh's
-# bounding-box diagonal (the same offset as stage.light_visibility).
-_OFFSET_FRACTION = 1e-4
 # A distant light for stage.light_visibility: a point this far along its direction (mm).
 _FAR_MM = 1e3
 # Lobe-selection probability of BRDF sampling: the specular share, clamped so
@@ -102,44 +92,24 @@ _Q_SPEC_MIN, _Q_SPEC_MAX = 0.1, 0.9
 
 # --------------------------------------------------------------------------- validation
 
-def _settings(method: str, settings: dict) -> dict:
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"unknown relighting method {method!r}; expected one of {METHODS}")
-    allowed = {**_COMMON, **DEFAULTS[method]}
-    unknown = sorted(set(settings) - set(allowed))
+def _settings(method, settings: dict) -> dict:
+    """The resolved settings: the method object (``settings["method"]``, from a
+    string name and its keywords or given as an object, validated when built)
+    and its settings flattened under their keyword names, plus the settings
+    every method shares (checked here)."""
+    m, rest = resolve_method(method, settings)
+    unknown = sorted(set(rest) - set(_COMMON))
     if unknown:
-        raise ValueError(f"method {method!r} has no setting(s) {unknown}; its settings are {sorted(allowed)}")
-    out = {**allowed, **settings}
-    def pos_int(name, lo=1):
-        v = out[name]
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
-            raise ValueError(f"method {method!r}: setting {name!r} must be an integer >= {lo}, got {v!r}")
-        out[name] = int(v)
+        raise ValueError(f"method {m.name!r} has no setting(s) {unknown}; its settings are "
+                         f"{sorted(set(_COMMON) | set(type(m).KEYWORDS))}")
+    out = {**_COMMON, **rest, **m.settings(), "method": m}
     if out["chunk"] is not None:
-        pos_int("chunk")
+        v = out["chunk"]
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+            raise ValueError(f"method {m.name!r}: setting 'chunk' must be an integer >= 1, got {v!r}")
+        out["chunk"] = int(v)
     if not (isinstance(out["eta"], (int, float)) and out["eta"] >= 1.0):
         raise ValueError(f"setting 'eta' (relative index of refraction) must be a float >= 1, got {out['eta']!r}")
-    if method == "rig":
-        pos_int("supersample")
-        if out["weights"] not in ("voronoi", "barycentric"):
-            raise ValueError(f"method 'rig': weights must be 'voronoi' or 'barycentric', got {out['weights']!r}")
-        if out["rig"] is not None and not isinstance(out["rig"], stage.Rig):
-            raise ValueError(f"method 'rig': rig must be a stage.Rig, got {type(out['rig']).__name__}")
-    elif method == "dense":
-        pos_int("resolution", 2)
-    elif method == "fast":
-        pos_int("levels", 2)
-        pos_int("prefilter_rows", 8)
-        pos_int("prefilter_samples")
-        pos_int("ao_rays")
-        pos_int("lut_size", 2)
-    else:
-        pos_int("samples", 2)
-        f = out["env_fraction"]
-        if not (isinstance(f, (int, float)) and 0.0 <= f <= 1.0):
-            raise ValueError(f"method 'reference': env_fraction must be in [0, 1], got {f!r}")
-        if out["heuristic"] not in ("balance", "power"):
-            raise ValueError(f"method 'reference': heuristic must be 'balance' or 'power', got {out['heuristic']!r}")
     if out["rotation"] is not None:
         r = np.asarray(out["rotation"], np.float64)
         if r.shape != (3, 3) or not np.all(np.isfinite(r)) or not np.allclose(r @ r.T, np.eye(3), atol=1e-4):
@@ -159,7 +129,8 @@ def check_inputs(maps, surface, env, wo_world=None):
         raise ValueError(f"env has {env.radiance.shape[-1]} channels but the maps' rho_d has {maps.rho_d.shape[-1]}")
     P = surface.num_samples
     if maps.num_samples != P:
-        raise ValueError(f"maps have {maps.num_samples} samples but the surface has {P}: they must describe the same samples")
+        raise ValueError(f"maps have {maps.num_samples} samples but the surface has {P}: "
+                         "they must describe the same samples")
     shapes = {"rho_d": (P, 3), "rho_s": (P, 1), "alpha": (P, 2), "normal": (P, 3), "tangent": (P, 3), "mfp": (P, 3),
               "model": (P,)}
     for name, shp in shapes.items():
@@ -177,46 +148,18 @@ def check_inputs(maps, surface, env, wo_world=None):
 
 
 # --------------------------------------------------------------------------- ray casting
-
-class _Rays:
-    """Segment-free occlusion queries on a mesh (embree through trimesh when
-    available): a ray from each sample (pushed off the surface along its
-    geometric normal) in a direction is blocked if it meets any triangle.
-    Directions below the geometric tangent plane count as blocked, as in
-    ``stage.light_visibility``."""
-
-    def __init__(self, mesh: stage.Mesh, surface: stage.Surface):
-        tm = mesh.trimesh()
-        if trimesh.ray.has_embree:
-            self.inter = trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
-        else:  # pragma: no cover - the pure-numpy intersector is slow but correct
-            self.inter = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
-        diag = np.linalg.norm(mesh.vertices.max(0) - mesh.vertices.min(0))
-        self.normal = np.asarray(surface.normal, np.float64)
-        self.origin = np.asarray(surface.position, np.float64) + self.normal * (_OFFSET_FRACTION * diag)
-
-    def visible(self, idx: np.ndarray, dirs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
-        """bool [n, k]: sample idx[i] sees direction dirs[i, j] (unit, world)."""
-        n, k = dirs.shape[:2]
-        above = np.einsum("nkc,nc->nk", dirs, self.normal[idx]) > 0
-        if active is not None:
-            above &= active
-        out = np.zeros((n, k), bool)
-        ii, jj = np.nonzero(above)
-        if len(ii):
-            o = self.origin[idx[ii]]
-            hit = self.inter.intersects_any(o, dirs[ii, jj])
-            out[ii, jj] = ~hit
-        return out
-
+# Occlusion queries along arbitrary directions (the Monte Carlo reference) are
+# stage.Occluder's: the one ray caster, with the same origin offset and
+# horizon test as stage.light_visibility.
 
 def direction_visibility(mesh: stage.Mesh, surface: stage.Surface, directions: np.ndarray) -> np.ndarray:
     """bool [P, D]: sample p sees distant direction d (``stage.light_visibility``
     with a distant rig whose lights are ``directions``)."""
     d = np.asarray(directions, np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    rig = stage.Rig(position=jnp.asarray(d * _FAR_MM, jnp.float32), intensity=jnp.ones((len(d), 1), jnp.float32),
-                    solid_angle=jnp.full((len(d),), 4 * np.pi / len(d), jnp.float32), near_field=False)
+    with jax.ensure_compile_time_eval():  # concrete under an outer jit: the ray caster reads it on the host
+        rig = stage.Rig(position=jnp.asarray(d * _FAR_MM, jnp.float32), intensity=jnp.ones((len(d), 1), jnp.float32),
+                        solid_angle=jnp.full((len(d),), 4 * np.pi / len(d), jnp.float32), near_field=False)
     return np.asarray(stage.light_visibility(mesh, surface, rig))
 
 
@@ -257,12 +200,10 @@ class Lighting:
 
 
 def _latlong_dirs_np(h: int) -> np.ndarray:
-    """relight.envmap.latlong_directions in NumPy (concrete even under an outer jit), [2 h^2, 3]."""
-    theta = np.pi * (np.arange(h) + 0.5) / h
-    phi = 2 * np.pi * (np.arange(2 * h) + 0.5) / (2 * h) - np.pi
-    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    d = np.stack(np.broadcast_arrays(st * np.sin(phi)[None], ct, -st * np.cos(phi)[None]), axis=-1)
-    return d.reshape(-1, 3)
+    """``relight.envmap.latlong_directions(h, 2 h)`` as concrete NumPy [2 h^2, 3]
+    (evaluated at trace time, so concrete even under an outer jit / grad)."""
+    with jax.ensure_compile_time_eval():
+        return np.asarray(latlong_directions(h, 2 * h), np.float64).reshape(-1, 3)
 
 
 def prepare_lighting(env: EnvMap, method: str, settings: dict) -> Lighting:
@@ -301,7 +242,11 @@ def _strength(lt: Lighting, rotation) -> tuple[Array, Array, bool]:
             e = jnp.broadcast_to(e, (e.shape[0], lt.env.radiance.shape[-1]))
         fn = light_weights if lt.settings["weights"] == "voronoi" else light_weights_barycentric
         kw = {"supersample": lt.settings["supersample"]} if lt.settings["weights"] == "voronoi" else {}
-        w = fn(lt.env, d_env, e, **kw).astype(dt)
+        # relight.envmap's Voronoi integrals mix float32 (the nearest-light
+        # pick) into a float64 map's sums through jnp.result_type, which strict
+        # dtype promotion refuses; the numbers are the same under "standard".
+        with jax.numpy_dtype_promotion("standard"):
+            w = fn(lt.env, d_env, e, **kw).astype(dt)
         # w_l times the light's own strength: intensity (near field, divided by
         # the squared distance in the kernel) or irradiance (distant).
         inten = jnp.asarray(rig.intensity, dt)
@@ -335,54 +280,33 @@ def _material(m, extra_axis: bool = False) -> LadderBRDF:
     return LadderBRDF(rho_d, rho_s, alpha, model[:, None])
 
 
-def _to_local(w, t, b, n):
-    """World -> shading frame; w [..., P, 3], frame [P, 3]."""
-    lead = (1,) * (w.ndim - 2)
-    t, b, n = (x.reshape(lead + x.shape) for x in (t, b, n))
-    return jnp.stack([jnp.sum(w * t, -1), jnp.sum(w * b, -1), jnp.sum(w * n, -1)], axis=-1)
-
-
-def _transmittance(cos, eta):
-    """Fresnel transmittance F_t = 1 - F_r(eta, cos) into the medium (as stage.simulate)."""
-    return 1.0 - brdf.fresnel_dielectric(jnp.clip(cos, 0.0, 1.0), eta)
-
-
 @functools.partial(jax.jit, static_argnames=("near_field", "want_sss"))
 def _directional_kernel(m, pos, wo, light, strength, vis, eta, near_field: bool, want_sss: bool):
     """sum over directions of f cos E V (and of F_t cos E V for subsurface)
     for one sample chunk; ``light`` [D, 3] positions (near field) or unit
-    directions, ``strength`` [D, C], ``vis`` [Pc, D]; D a multiple of _DIR_BLOCK."""
+    directions, ``strength`` [D, C], ``vis`` [Pc, D]; D a multiple of _DIR_BLOCK.
+
+    The OLAT forward model of ``stage.simulate``, term for term:
+    ``stage.incident_light`` (inverse square for near-field lights),
+    ``stage.to_local``, ``stage.reflected_radiance_lights`` (f_r cos_i E V) and
+    ``stage.subsurface_irradiance`` (F_t cos_i E V, Jensen et al. 2001 eq. 5)."""
     t, b, n = m[4], m[5], m[6]
     mat = _material(m)
-    wo_l = _to_local(wo, t, b, n)
+    wo_l = stage.to_local(wo, t, b, n)
     D, C = strength.shape
     nb = D // _DIR_BLOCK
-    Pc = pos.shape[0]
     xs = (light.reshape(nb, _DIR_BLOCK, 3), strength.reshape(nb, _DIR_BLOCK, C),
-          vis.T.reshape(nb, _DIR_BLOCK, Pc))
+          vis.T.reshape(nb, _DIR_BLOCK, pos.shape[0]))
 
     def body(carry, x):
         lb, sb, vb = x
-        if near_field:
-            delta = lb[:, None, :] - pos[None]
-            d2 = jnp.sum(delta * delta, axis=-1, keepdims=True)
-            wi = safe_normalize(delta)
-            irr = sb[:, None, :] / d2
-        else:
-            wi = jnp.broadcast_to(lb[:, None, :], (_DIR_BLOCK, Pc, 3))
-            irr = jnp.broadcast_to(sb[:, None, :], (_DIR_BLOCK, Pc, C))
-        wi_l = _to_local(wi, t, b, n)
-        f = jax.vmap(lambda w: mat(w, wo_l))(wi_l)
-        cos = jnp.maximum(wi_l[..., 2:3], 0.0)
-        v = vb[..., None]
-        acc = carry[0] + jnp.sum(jnp.where(v, f * cos * irr, 0.0), axis=0)
-        if want_sss:
-            e = carry[1] + jnp.sum(jnp.where(v, _transmittance(cos, eta) * cos * irr, 0.0), axis=0)
-        else:
-            e = carry[1]
+        wi, irr = stage.incident_light(lb, sb, near_field, pos)  # [B, Pc, 3], [B, Pc, C]
+        wi_l = stage.to_local(wi, t, b, n)
+        acc = carry[0] + jnp.sum(stage.reflected_radiance_lights(mat, wi_l, wo_l, irr, vb), axis=0)
+        e = carry[1] + jnp.sum(stage.subsurface_irradiance(wi_l, irr, eta, vb), axis=0) if want_sss else carry[1]
         return (acc, e), None
 
-    z = jnp.zeros((Pc, C), strength.dtype)
+    z = jnp.zeros((pos.shape[0], C), strength.dtype)
     (acc, e), _ = jax.lax.scan(body, (z, z), xs)
     return acc, e
 
@@ -436,7 +360,7 @@ def _mc_sample(m, ng, wo_in, key, rot, sampler, radiance, eta, n_env: int, n_brd
     Pc = wo.shape[0]
     dt = wo.dtype
     k1, k2 = jax.random.split(key, 2)
-    wo_l = _to_local(wo, t, b, n)  # [Pc, 3]
+    wo_l = stage.to_local(wo, t, b, n)  # [Pc, 3]
     wo_b = wo_l[:, None, :]
     dirs = []
     if n_env:
@@ -464,12 +388,12 @@ def _mc_sample(m, ng, wo_in, key, rot, sampler, radiance, eta, n_env: int, n_brd
     N = n_env + n_brdf
     d_env = d @ rot  # R^T d (row vectors)
     L = sample_latlong(radiance, d_env, "nearest")  # [Pc, N, C]
-    wi_all = _to_local(jnp.swapaxes(d, 0, 1), t, b, n)  # [N, Pc, 3]
+    wi_all = stage.to_local(jnp.swapaxes(d, 0, 1), t, b, n)  # [N, Pc, 3]
     wi_all = jnp.swapaxes(wi_all, 0, 1)  # [Pc, N, 3]
     wo_all = jnp.broadcast_to(wo_b, (Pc, N, 3))
     # The same directions in the differentiable frame, for f_r and the cosine.
-    wi_f = jnp.swapaxes(_to_local(jnp.swapaxes(d, 0, 1), m[4], m[5], m[6]), 0, 1)
-    wo_f = jnp.broadcast_to(_to_local(wo_in, m[4], m[5], m[6])[:, None, :], (Pc, N, 3))
+    wi_f = jnp.swapaxes(stage.to_local(jnp.swapaxes(d, 0, 1), m[4], m[5], m[6]), 0, 1)
+    wo_f = jnp.broadcast_to(stage.to_local(wo_in, m[4], m[5], m[6])[:, None, :], (Pc, N, 3))
     p_e = envmap_pdf(sampler, d_env)[..., None] * n_env  # [Pc, N, 1], times the sample counts
     p_spec = jnp.where(q > 0, micro.pdf(wo_all, wi_all), 0.0)
     p_b = (q * p_spec + (1.0 - q) * brdf.pdf_cosine_hemisphere(wi_all)) * n_brdf
@@ -487,13 +411,14 @@ def _mc_sample(m, ng, wo_in, key, rot, sampler, radiance, eta, n_env: int, n_brd
     # for d/dtheta of the integral; differentiating the pdfs would add a
     # biased term and a large backward graph).
     mis = jax.lax.stop_gradient(mis)
-    f = _material(m, extra_axis=True)(wi_f, wo_f)
-    cos = jnp.maximum(wi_f[..., 2:3], 0.0)
     if horizon:
         up = jnp.sum(d * ng[:, None, :], axis=-1, keepdims=True) > 0
         mis = jnp.where(up, mis, 0.0)
-    g = f * cos * L * mis
-    gs = _transmittance(cos, eta) * cos * L * mis if want_sss else jnp.zeros_like(g)
+    # Each direction is a light of radiance L, weighted: the OLAT forward model
+    # of stage (f_r cos_i E, and F_t cos_i E into the medium) with E = L mis.
+    e = L * mis
+    g = stage.reflected_radiance(_material(m, extra_axis=True), wi_f, wo_f, e)
+    gs = stage.subsurface_irradiance(wi_f, e, eta) if want_sss else jnp.zeros_like(g)
     return d, g, gs
 
 
@@ -516,14 +441,6 @@ class Geometry:
     ao: Any = None
     bent: Any = None
     rays: Any = None
-
-
-def _fibonacci(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    y = 1 - 2 * i / n
-    r = np.sqrt(np.maximum(1 - y * y, 0))
-    phi = np.pi * (1 + 5**0.5) * i
-    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=-1)
 
 
 def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, mesh, visibility=None) -> Geometry:
@@ -550,7 +467,7 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
             g.ao = jnp.ones((P, 1), dt)
             g.bent = None
             return g
-        dirs = _fibonacci(lt.settings["ao_rays"])
+        dirs = brdf.fibonacci_sphere(lt.settings["ao_rays"], axis=1)
         vis = direction_visibility(mesh, surface, dirs)  # [P, K]
         n = np.asarray(maps.frame(surface).normal, np.float64)
         cos = np.maximum(n @ dirs.T, 0.0) * (np.asarray(surface.normal, np.float64) @ dirs.T > 0)  # [P, K]
@@ -568,7 +485,7 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
         g.bent = jnp.asarray(bent, dt)
         return g
     if mesh is not None:
-        g.rays = _Rays(mesh, surface)
+        g.rays = stage.Occluder(mesh, surface)
     return g
 
 
@@ -637,7 +554,7 @@ def shade(lt: Lighting, geo: Geometry, maps: MaterialMaps, surface: stage.Surfac
         s0 = c * chunk
         n = min(chunk, P - s0)
         idx = np.minimum(np.arange(s0, s0 + chunk), P - 1)
-        take = (lambda a: a[idx]) if chunk != P else (lambda a: a)
+        take = (lambda a, idx=idx: a[idx]) if chunk != P else (lambda a: a)
         m = tuple(take(a) for a in m_all)
         if lt.method in ("rig", "dense"):
             if geo.vis is None:
@@ -682,9 +599,9 @@ def shade(lt: Lighting, geo: Geometry, maps: MaterialMaps, surface: stage.Surfac
             M = op.apply(maps.profile(), e_in.astype(op.distance.dtype)).astype(dt)
         else:
             M = jnp.asarray(sss_exitance, dt)
-        cos_o = jnp.maximum(jnp.sum(wo * m_all[6], axis=-1, keepdims=True), 0.0)
-        l_ss = _transmittance(cos_o, float(s["eta"])) / jnp.pi * M
-        out = out + jnp.where(is_sss & (cos_o > 0), l_ss, 0.0)
+        wo_l = stage.to_local(wo, m_all[4], m_all[5], m_all[6])
+        seen = is_sss[:, 0] & (wo_l[:, 2] > 0)
+        out = out + stage.subsurface_exitance(M, wo_l, float(s["eta"]), seen)
     return jnp.where(jnp.isfinite(out), out, 0.0), M
 
 
@@ -715,7 +632,8 @@ def build_operator(maps: MaterialMaps, surface: stage.Surface):
     return skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), radius)
 
 
-def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_world, *, method: str = "rig",
+def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_world, *,
+                   method: str | AbstractMethod = "rig",
                    mesh: stage.Mesh | None = None, rig: stage.Rig | None = None, visibility=None, key=None,
                    **settings) -> Float[Array, "sample 3"]:
     """Relit outgoing radiance [P, 3] at each surface sample toward ``wo_world``.
@@ -735,7 +653,10 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
             geometric ones used to offset rays and for the horizon test).
         env: ``relight.envmap.EnvMap``.
         wo_world: [P, 3] or [3] unit directions toward the viewer (world).
-        method: one of ``METHODS`` = ("rig", "dense", "fast", "reference").
+        method: a method object (``relight.render.Rig``, ``Dense``, ``Fast``,
+            ``Reference``, holding that method's settings) or one of the
+            string names ``METHODS`` = ("rig", "dense", "fast", "reference"),
+            which take the method's settings as keyword arguments (below).
         mesh: ``stage.Mesh`` for shadows (visibility is computed once here;
             pass ``visibility`` to reuse it).
         rig: the rig of method "rig" (default ``stage.light_stage_x()``).
@@ -773,14 +694,17 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
     shape, or maps and surface of different sizes.
     """
     if rig is not None:
+        name = method.name if isinstance(method, AbstractMethod) else method
+        if name != "rig":
+            raise ValueError(f"rig= is a setting of method 'rig', not of {name!r}")
+        if isinstance(method, AbstractMethod):
+            raise ValueError("rig= with a method object: give it as relight.render.Rig(rig=...)")
         settings["rig"] = rig
-        if method != "rig":
-            raise ValueError(f"rig= is a setting of method 'rig', not of {method!r}")
     s = _settings(method, settings)
     wo = check_inputs(maps, surface, env, wo_world)
     if mesh is not None and not isinstance(mesh, stage.Mesh):
         raise ValueError(f"mesh must be a stage.Mesh or None, got {type(mesh).__name__}")
-    lt = prepare_lighting(env, method, s)
+    lt = prepare_lighting(env, s["method"].name, s)
     geo = prepare_geometry(lt, maps, surface, mesh, visibility)
     out, _ = shade(lt, geo, maps, surface, wo, rotation=s["rotation"], key=key)
     return out

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -27,10 +28,10 @@ import numpy as np
 
 import stage
 
-from . import _methods as rs
 from ..envmap._latlong import EnvMap, rotation_matrix, sample_latlong
-from ..materials._maps import SUBSURFACE, MaterialMaps
 from ..image._preview import dilate, sample_texture
+from ..materials._maps import SUBSURFACE, MaterialMaps
+from . import _methods as rs
 
 __all__ = ["render_view", "turntable"]
 
@@ -126,7 +127,7 @@ class _Renderer:
         self.maps, self.texel_surface, self.mesh, self.env = maps, texel_surface, mesh, env
         self.progress = progress or (lambda msg: None)
         self.progress("lighting")
-        self.lt = rs.prepare_lighting(env, method, self.s)
+        self.lt = rs.prepare_lighting(env, self.s["method"].name, self.s)
         self.tex = _textures(maps, texel_surface)
         model = np.asarray(maps.model)
         self.has_sss = bool(np.any(model == SUBSURFACE))
@@ -179,7 +180,7 @@ class _Renderer:
 
 
 def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
-                *, method: str = "rig", supersample: int = 2, background: bool = True, key=None,
+                *, method: str | rs.AbstractMethod = "rig", supersample: int = 2, background: bool = True, key=None,
                 progress: Callable[[str], None] | None = None, **settings) -> np.ndarray:
     """Render the texel-space ``maps`` (over ``texel_surface``, from
     ``stage.texel_samples(mesh, ...)``) on ``mesh`` as ``camera`` sees it under
@@ -212,7 +213,8 @@ def orbit_camera(camera: stage.Camera, angle: float, axis=(0.0, 1.0, 0.0)) -> st
 
 
 def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
-              *, frames: int = 24, mode: str = "envmap", method: str = "rig", axis=(0.0, 1.0, 0.0),
+              *, frames: int = 24, mode: str = "envmap", method: str | rs.AbstractMethod = "rig",
+              axis=(0.0, 1.0, 0.0),
               supersample: int = 2, background: bool = True, key=None,
               progress: Callable[[str], None] | None = None, **settings) -> Iterator[np.ndarray]:
     """An iterator over ``frames`` images [H, W, 3] of a full turn (frame k at
@@ -251,7 +253,8 @@ def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh
     def envmap_frames():
         v = r.view(camera, supersample)
         for k, a in enumerate(angles):
-            rot = np.asarray(rotation_matrix(jnp.asarray(axis, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32),
+            axis_dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+            rot = np.asarray(rotation_matrix(jnp.asarray(axis, axis_dt),
                                              jnp.asarray(a)), np.float64)
             rot = None if k == 0 else rot
             kk = jax.random.fold_in(key, k)

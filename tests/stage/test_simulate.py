@@ -68,8 +68,9 @@ def test_gradient_illumination_normals(scene):
     # Specular normals from parallel - cross (Ma et al. 2007): the GGX lobe (alpha 0.2) is sampled
     # by 162 lights ~17 degrees apart, so its centroid is only good to a few degrees.
     g_spec = stage.gradient_images(stage.Capture(par.radiance - cross.radiance, par.mask, par.rig, par.cameras))[0]
-    wo = np.asarray(scene["cam"].view_directions(scene["surf"].position))
-    ns = np.asarray(stage.specular_normals(g_spec, wo), np.float64)[seen]
+    wo_j = scene["cam"].view_directions(scene["surf"].position)
+    wo = np.asarray(wo_j)
+    ns = np.asarray(stage.specular_normals(g_spec, wo_j), np.float64)[seen]
     cos_v = np.sum(n_true * wo[seen], 1)
     central = cos_v > np.cos(np.deg2rad(45))  # away from grazing, where the lobe is cut by the horizon
     err_s = np.degrees(np.arccos(np.clip(np.sum(ns * n_true, 1), -1, 1)))[central]
