@@ -193,7 +193,8 @@ def np_residual(u, obs, wi, wo, irr, floor, c):
 
 
 def packed_data(capture, surface, lay):
-    """relight's per-sample observation arrays and its start u0 (through relight.fitting._driver / _fit_init)."""
+    """relight's per-sample observation arrays and its start u0 (through
+    relight.fitting._driver and relight.fitting._init)."""
     from relight.fitting import _driver as _fit
 
     n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))

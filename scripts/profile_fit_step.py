@@ -1,43 +1,87 @@
 """Where a fit's time goes: per-texel cost of one forward evaluation of the
-reference model (``_fit_model.predict``), its forward-mode Jacobian, the
-solver's structured residual + Jacobian (``_fit_model.residual_and_jacobian``),
-and Optimistix Levenberg-Marquardt at 1 and 20 steps, for Lambert + GGX + normal on 192 observations x RGB (one chunk of
-256 texels, float32, compile excluded).
+reference model (``relight.fitting._model.predict``: ``stage.reflected_radiance``
+of brdf Modules), its forward-mode Jacobian, the solver's structured residual +
+Jacobian (``_model.residual_and_jacobian``, brdf's component-major kernels) with
+the normal equations it feeds, and Optimistix Levenberg-Marquardt at 1 and 20
+steps (per texel and per texel-step), for Lambert + GGX + normal on 192
+observations x RGB (one chunk of 256 texels, float32, compile excluded; the
+best of ``--repeat`` timings, so a loaded machine reads less noisy).
 
-    python scripts/profile_fit_step.py
+    python scripts/profile_fit_step.py [--repeat 5]
 """
+
+import argparse
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from relight.fitting import _driver as _fit, _model as _fit_model
-from relight.fitting._model import Layout
-Pc, N = 256, 192
-rng = np.random.default_rng(0)
-def unit(x): return x/np.linalg.norm(x,axis=-1,keepdims=True)
-wi = unit(rng.normal(size=(Pc,N,3))); wi[...,2]=np.abs(wi[...,2]); wo = np.broadcast_to(unit(np.array([0.1,0,1.0])),(Pc,N,3)).copy()
-obs = rng.uniform(0.01,0.5,(Pc,N,3)).astype(np.float32); w = np.ones_like(obs); h=0*w; irr=np.ones_like(obs)
-wi=wi.astype(np.float32); wo=wo.astype(np.float32)
-lay = Layout(2, True, 0.07)
-u0 = jnp.zeros((Pc, lay.size), jnp.float32)
-f = jax.jit(jax.vmap(lambda u,a,b,c: _fit_model.predict(_fit_model.unpack(u,lay),lay,a,b,c)))
-J = jax.jit(jax.vmap(lambda u,a,b,c: jax.jacfwd(lambda v: _fit_model.predict(_fit_model.unpack(v,lay),lay,a,b,c))(u)))
-T = lambda x: jnp.swapaxes(jnp.asarray(x), 1, 2)
-def normal_eq(u, *a):  # what a Gauss-Newton step consumes: J^T J and J^T r
-    r, J, _ = _fit_model.residual_and_jacobian(u, *a, lay, 0.02)
-    return J.T @ J, J.T @ r
-RJ = jax.jit(jax.vmap(normal_eq))
-cm = (T(obs), T(w), T(wi), T(wo), T(irr))
-for name, fn, a in (("predict (reference)", f, (wi,wo,irr)), ("jacfwd of predict", J, (wi,wo,irr)),
-                    ("residual_and_jacobian -> J^T J, J^T r", RJ, cm)):
-    jax.block_until_ready(fn(u0,*a)); t=time.perf_counter()
-    for _ in range(5): jax.block_until_ready(fn(u0,*a))
-    print(name, (time.perf_counter()-t)/5/Pc*1e6, "us/texel")
-args = [jnp.asarray(x) for x in (obs,w,h,wi,wo,irr)]
-for ms in (1, 20):
-    kw = dict(lay=lay, solver="lm", max_steps=ms, rtol=1e-12, atol=1e-12, cauchy=0.1)
-    _fit._solve_chunk(u0,*args,**kw)[0].block_until_ready(); t=time.perf_counter()
-    out=_fit._solve_chunk(u0,*args,**kw); out[0].block_until_ready()
-    print("solve max_steps", ms, (time.perf_counter()-t)/Pc*1e3, "ms/texel", np.mean(np.asarray(out[3])))
+from relight.fitting import _driver as _fit
+from relight.fitting import _model as _fit_model
+from relight.fitting._model import GGX, Layout
+
+PC, N = 256, 192  # texels per chunk, observations per texel
+
+
+def _unit(x):
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _best(fn, args, repeat):
+    """Seconds of the fastest of ``repeat`` calls (after one that compiles) and the last output."""
+    out = jax.block_until_ready(fn(*args))
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    wi = _unit(rng.normal(size=(PC, N, 3)))
+    wi[..., 2] = np.abs(wi[..., 2])
+    wo = np.broadcast_to(_unit(np.array([0.1, 0.0, 1.0])), (PC, N, 3)).copy()
+    obs = rng.uniform(0.01, 0.5, (PC, N, 3)).astype(np.float32)
+    w = np.ones_like(obs)
+    irr = np.ones_like(obs)
+    wi, wo = wi.astype(np.float32), wo.astype(np.float32)
+    lay = Layout(GGX, True, 0.07)
+    u0 = jnp.zeros((PC, lay.size), jnp.float32)
+
+    def predict(u, a, b, c):
+        return _fit_model.predict(_fit_model.unpack(u, lay), lay, a, b, c)
+
+    def normal_eq(u, *a):  # what a Gauss-Newton step consumes: J^T J and J^T r
+        r, J, _ = _fit_model.residual_and_jacobian(u, *a, lay, 0.02)
+        return J.T @ J, J.T @ r
+
+    def cm(x):  # component-major [Pc, 3, N]
+        return jnp.swapaxes(jnp.asarray(x), 1, 2)
+
+    rows = (("predict (reference)", jax.jit(jax.vmap(predict)), (u0, wi, wo, irr)),
+            ("jacfwd of predict", jax.jit(jax.vmap(lambda u, *a: jax.jacfwd(predict)(u, *a))), (u0, wi, wo, irr)),
+            ("residual_and_jacobian -> J^T J, J^T r", jax.jit(jax.vmap(normal_eq)),
+             (u0, cm(obs), cm(w), cm(wi), cm(wo), cm(irr))))
+    for name, fn, a in rows:
+        t, _ = _best(fn, a, args.repeat)
+        print(f"{name}: {t / PC * 1e6:.1f} us/texel")
+    data = [jnp.asarray(x) for x in (obs, w, 0 * w, wi, wo, irr)]
+    solver, _ = _fit.resolve_solver("lm", rtol=1e-12, atol=1e-12)  # tolerances that never stop it early
+    for ms in (1, 20):
+        def solve(u, *a, ms=ms):
+            return _fit._solve_chunk(u, *a, lay=lay, solver=solver, max_steps=ms, cauchy=0.1)
+
+        t, out = _best(solve, (u0, *data), max(1, args.repeat // 2))
+        steps = float(np.mean(np.asarray(out[3])))
+        print(f"solve max_steps {ms}: {t / PC * 1e3:.3f} ms/texel, {t / PC / steps * 1e6:.1f} us/texel-step "
+              f"(mean steps {steps:.1f})")
+
+
+if __name__ == "__main__":
+    main()

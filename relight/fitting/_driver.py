@@ -7,11 +7,12 @@ Blinn-Phong; + isotropic GGX (Walter et al. 2007, Smith masking, Schlick
 Fresnel with F0 = the specular albedo: the form Kang et al. 2018 fit);
 + anisotropic GGX with its tangent angle; optionally the shading normal.
 
-1. start (:mod:`relight._fit_init`): photometric stereo on the lights least
+1. start (:mod:`relight.fitting._init`): photometric stereo on the lights least
    affected by specular reflection and shadow, then closed-form albedos on a
    roughness grid;
 2. refine: ``optimistix.least_squares`` (Levenberg-Marquardt by default;
-   Gauss-Newton, Dogleg, BFGS selectable), ``jax.vmap`` over a chunk of
+   any Optimistix least-squares solver or minimiser object, or by name
+   Gauss-Newton, Dogleg, BFGS), ``jax.vmap`` over a chunk of
    samples, chunks over the sample axis so memory is bounded by the chunk,
    rounds of a few steps with only the unconverged samples going on (packed
    into full chunks: "straggler compaction"); a Cauchy loss so cast shadows and
@@ -36,11 +37,20 @@ from jaxtyping import Array, Float, Int
 
 import stage
 
+from ..materials._maps import (
+    BLINN_PHONG,
+    GGX,
+    GGX_ANISO,
+    LAMBERT,
+    MODELS,
+    SUBSURFACE,
+    LadderBRDF,
+    MaterialMaps,
+    material_maps,
+)
 from . import _init as _fit_init
-
 from . import _model as _fit_model
 from ._model import Layout
-from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, MODELS, SUBSURFACE, LadderBRDF, MaterialMaps, material_maps
 
 # The fitter's roughness prior, separate from the model's own floor
 # (brdf.ALPHA_MIN): below this no light stage resolves a GGX lobe.
@@ -85,7 +95,10 @@ class Fit(eqx.Module):
     observations [P], one-sigma uncertainties [P, 9] from J^T J (names in
     ``PARAM_NAMES``, 0 where a rung has no such parameter), and the roughness
     floor the rig resolves (``alpha_floor``: a fitted alpha at the floor means
-    "narrower than the rig can tell", flagged by ``unresolved``)."""
+    "narrower than the rig can tell", flagged by ``unresolved``), the mean
+    free path [P, 3] (mm; after :func:`relight.fit_subsurface`, else None) and
+    the solver's name (``solver``: the string given to :func:`fit`, or the
+    class and tolerances of the Optimistix solver object)."""
 
     rho_d: Float[Array, "sample 3"]
     rho_s: Float[Array, "sample 1"]
@@ -101,6 +114,7 @@ class Fit(eqx.Module):
     uncertainty: Float[Array, "sample 9"]
     alpha_floor: float = eqx.field(static=True, default=ALPHA_FIT_MIN)
     mfp: Float[Array, "sample 3"] | None = None
+    solver: str = eqx.field(static=True, default="lm")
 
     @property
     def f0(self):
@@ -128,9 +142,14 @@ class Fit(eqx.Module):
         return LadderBRDF(self.rho_d, self.rho_s, self.alpha, self.model[:, None], include_diffuse=True)
 
 
-def _solver(name: str, rtol: float, atol: float):
-    # Normal equations + Cholesky: the systems are 3-9 wide and, with LM's
-    # damping, well conditioned; several times cheaper than QR of [N, p].
+# The string spellings of ``fit(solver=...)`` (the CLI's --method) and their
+# tolerances. Normal equations + Cholesky: the systems are 3-9 wide and, with
+# LM's damping, well conditioned; several times cheaper than QR of [N, p].
+_RTOL, _ATOL = 1e-5, 1e-6
+
+
+def _named_solver(name: str, rtol: float, atol: float):
+    """The Optimistix solver a string spelling stands for."""
     chol = lx.Normal(lx.Cholesky())
     if name == "lm":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=chol)
@@ -141,16 +160,51 @@ def _solver(name: str, rtol: float, atol: float):
     return optx.BFGS(rtol=rtol, atol=atol)
 
 
+def _solver_name(solver) -> str:
+    """A short name of an Optimistix solver object for reports: its class and tolerances."""
+    tol = ", ".join(f"{k}={getattr(solver, k):g}" for k in ("rtol", "atol")
+                    if isinstance(getattr(solver, k, None), (int, float)))
+    return f"{type(solver).__name__}({tol})"
+
+
+def resolve_solver(solver, rtol: float | None = None, atol: float | None = None):
+    """(Optimistix solver, name) for ``fit``'s ``solver`` argument: a string of
+    ``SOLVERS`` (built with ``rtol`` / ``atol``, default 1e-5 / 1e-6, and the
+    normal-equations Cholesky linear solver) or an Optimistix least-squares
+    solver or minimiser object, used as it is (it carries its own tolerances,
+    so ``rtol`` / ``atol`` must then be None). Raises ValueError / TypeError
+    naming ``solver`` otherwise."""
+    if isinstance(solver, str):
+        if solver not in SOLVERS:
+            raise ValueError(f"fit: solver must be one of {SOLVERS} or an Optimistix solver object, got {solver!r}")
+        rtol = _RTOL if rtol is None else float(rtol)
+        atol = _ATOL if atol is None else float(atol)
+        if not (rtol >= 0 and atol >= 0):
+            raise ValueError(f"fit: rtol and atol must be >= 0, got rtol={rtol}, atol={atol}")
+        return _named_solver(solver, rtol, atol), solver
+    if isinstance(solver, (optx.AbstractLeastSquaresSolver, optx.AbstractMinimiser)):
+        if rtol is not None or atol is not None:
+            raise ValueError(f"fit: rtol / atol apply to a solver given by name; the solver object "
+                             f"{_solver_name(solver)} carries its own tolerances")
+        return solver, _solver_name(solver)
+    raise TypeError(f"fit: solver must be one of {SOLVERS} or an Optimistix solver object "
+                    f"(optx.AbstractLeastSquaresSolver or optx.AbstractMinimiser, e.g. "
+                    f"optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6)), got {type(solver).__name__}: {solver!r}")
+
+
 @jax.jit(static_argnames=("lay",))
 def _start_chunk(obs, w, wi, wo, irr, lay):
     """Start for each sample, packed to the unconstrained parameters [Pc, size]."""
     return jax.vmap(lambda *a: _fit_model.pack(_fit_init.start(*a, lay), lay))(obs, w, wi, wo, irr)
 
 
-@jax.jit(static_argnames=("lay", "solver", "max_steps", "rtol", "atol", "cauchy"))
-def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, rtol, atol, cauchy):
-    """``max_steps`` solver steps from u0 for each sample of the chunk (vmapped).
-    Returns (u, rms, code, steps, sigma [Pc, k], held-out MSE)."""
+# eqx.filter_jit: the solver object's array leaves (GaussNewton's learning
+# rate) are traced and the rest is static (hashed), like ``lay``, ``max_steps``
+# and ``cauchy``; so one compilation per (rung, solver, shapes).
+@eqx.filter_jit
+def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, cauchy):
+    """``max_steps`` steps of the Optimistix ``solver`` from u0 for each sample
+    of the chunk (vmapped). Returns (u, rms, code, steps, sigma [Pc, k], held-out MSE)."""
 
     def one(u0, obs, w, h, wi, wo, irr):
         sw = jnp.sqrt(w)
@@ -160,8 +214,7 @@ def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, rtol, at
         obs, sw, h, wi, wo, irr = (x.T for x in (obs, sw, h, wi, wo, irr))
         res = _fit_model.materialised_residual(obs, sw, wi, wo, irr, lay, c)
 
-        sol = optx.least_squares(lambda u, _: res(u), _solver(solver, rtol, atol), u0, max_steps=max_steps,
-                                 throw=False)
+        sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
         u1 = sol.value
         cost0 = jnp.sum(res(u0) ** 2)
         cost1 = jnp.sum(res(u1) ** 2)
@@ -219,13 +272,15 @@ def _chunks_of(index, size):
         yield idx, n
 
 
-def _fit_rung(data, w, h, index, lay, u0, opts, progress):
-    """Fit one rung to the samples ``index``; returns per-sample arrays over ``index``."""
+def _fit_rung(data, w, h, index, lay, u0, opts, progress, phase):
+    """Fit one rung to the samples ``index``; returns per-sample arrays over
+    ``index``. Reports the samples finished as ``progress(phase, done, len(index))``."""
     obs, _, wi, wo, irr = data
     chunk = opts["size"]
     n_all = len(index)
     local = np.arange(n_all)
     take = lambda x, idx: jnp.asarray(x[index[idx]])  # noqa: E731
+    bar = stage.Phase(progress, phase, n_all)
     if u0 is None:
         u = np.zeros((n_all, lay.size), obs.dtype)
         for idx, n in _chunks_of(local, chunk):
@@ -244,18 +299,16 @@ def _fit_rung(data, w, h, index, lay, u0, opts, progress):
         for idx, n in _chunks_of(active, chunk):
             out = _solve_chunk(jnp.asarray(u[idx]), take(obs, idx), take(w, idx), take(h, idx), take(wi, idx),
                                take(wo, idx), take(irr, idx), lay=lay, solver=opts["solver"],
-                               max_steps=opts["steps_per_round"], rtol=opts["rtol"], atol=opts["atol"],
-                               cauchy=opts["cauchy"])
+                               max_steps=opts["steps_per_round"], cauchy=opts["cauchy"])
             uu, rr, cc, kk, ss, hh = (np.asarray(x)[:n] for x in out)
             sel = idx[:n]
             u[sel], rms[sel], code[sel], steps[sel], sigma[sel], hmse[sel] = uu, rr, cc, steps[sel] + kk, ss, hh
-            if progress is not None:
-                progress(int(np.sum(cc != _MAX_STEPS_CODE)))
+            bar.advance(int(np.sum(cc != _MAX_STEPS_CODE)))
         active = active[code[active] == _MAX_STEPS_CODE]
         if len(active) == 0:
             break
-    if progress is not None and len(active):
-        progress(len(active))
+    if len(active):
+        bar.advance(len(active))
     return dict(u=u, rms=rms, hmse=hmse, code=code, steps=steps, sigma=sigma)
 
 
@@ -275,9 +328,9 @@ def _rungs(model) -> tuple[int, ...]:
 
 
 def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
-        solver: str = "lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
-        holdout: int = 5, chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float = 1e-5,
-        atol: float = 1e-6, progress=None) -> Fit:
+        solver="lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
+        holdout: int = 5, chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float | None = None,
+        atol: float | None = None, progress=None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
     ``model``: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",
@@ -285,8 +338,15 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
     ``holdout``-th light, scored on those, and each sample keeps the simplest
     rung whose held-out mean squared error is within two standard errors of
     the noise of the best; then it is refitted on every light). ``normals``:
-    also fit the shading normal (photometric-stereo start). ``solver``: "lm"
-    (Levenberg-Marquardt), "gn" (Gauss-Newton), "dogleg" or "bfgs".
+    also fit the shading normal (photometric-stereo start). ``solver``: an
+    Optimistix least-squares solver or minimiser object
+    (``optx.LevenbergMarquardt(rtol, atol)``, ``optx.GaussNewton``,
+    ``optx.Dogleg``, ``optx.BFGS``, ...), used as it is; or one of the names
+    ``SOLVERS``: "lm" (Levenberg-Marquardt, default), "gn" (Gauss-Newton),
+    "dogleg", "bfgs", which stand for those solvers with tolerances ``rtol`` /
+    ``atol`` (default 1e-5 / 1e-6) and, for the first three, the
+    normal-equations Cholesky linear solver (``lx.Normal(lx.Cholesky())``);
+    ``rtol`` / ``atol`` are for names only. ``Fit.solver`` records the name.
     ``loss``: "cauchy" (scale ``cauchy`` x the sample's RMS radiance) or "l2".
     ``alpha_floor``: smallest roughness; default :func:`rig_alpha_floor`.
 
@@ -295,8 +355,10 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
     slowest sample stops, so small chunks waste fewer steps; 64-256 measured
     best on 2 CPU cores, ``scripts/bench_fit.py``); each sample gets up to ``rounds *
     steps_per_round`` steps, later rounds only for samples still unconverged
-    (compacted). ``progress(n)`` reports finished samples (``model="auto"``
-    reports each rung's pass). NaN never leaves: a sample with too few
+    (compacted). ``progress(phase, done, total)`` (``stage.Progress``) reports
+    finished samples per pass: phase "fit <rung>" (``model="auto"``: first
+    "fit <rung> (held out)" for each rung's trial, then "fit <rung>" for each
+    refit), ``done`` of ``total`` samples. NaN never leaves: a sample with too few
     observations gets grey defaults, and one whose solve fails keeps its start;
     both are flagged in ``Fit.failed``.
     """
@@ -307,8 +369,9 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
         raise ValueError(f"fit: expects RGB radiance (C = 3), got C = {C}")
     if chunk < 1 or rounds < 1 or steps_per_round < 1:
         raise ValueError("fit: chunk, rounds and steps_per_round must be >= 1")
-    if solver not in SOLVERS:
-        raise ValueError(f"fit: solver must be one of {SOLVERS}, got {solver!r}")
+    if progress is not None and not callable(progress):
+        raise TypeError(f"fit: progress must be a callable progress(phase, done, total) or None, got {progress!r}")
+    solver, solver_name = resolve_solver(solver, rtol, atol)
     if loss not in LOSSES:
         raise ValueError(f"fit: loss must be one of {LOSSES}, got {loss!r}")
     if loss == "cauchy" and not cauchy > 0:
@@ -327,23 +390,23 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
     n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
     n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
     parts = [_observations(capture, surface, s, min(s + chunk, P), n_keep, dt) for s in range(0, P, chunk)]
-    obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts))
+    obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts, strict=True))
     data = (obs, w, wi, wo, irr)
-    opts = dict(size=_chunk_size(P, chunk), rounds=rounds, steps_per_round=steps_per_round, rtol=rtol, atol=atol,
-                solver=solver, cauchy=float(cauchy) if loss == "cauchy" else None)
+    opts = dict(size=_chunk_size(P, chunk), rounds=rounds, steps_per_round=steps_per_round, solver=solver,
+                cauchy=float(cauchy) if loss == "cauchy" else None)
     every = np.arange(P)
     zero = np.zeros_like(w)
 
     if len(rungs) == 1:
         choice = np.full(P, rungs[0], np.int32)
         fits = {rungs[0]: (every, _fit_rung(data, w, zero, every, Layout(rungs[0], normals, floor), None, opts,
-                                              progress))}
+                                              progress, f"fit {MODELS[rungs[0]]}"))}
         heldout = np.zeros(P, dt)
     else:
         hmask = (light % holdout == holdout // 2)[..., None].astype(dt) * w
         train = w - hmask
-        trial = {k: _fit_rung(data, train, hmask, every, Layout(k, normals, floor), None, opts, progress)
-                 for k in rungs}
+        trial = {k: _fit_rung(data, train, hmask, every, Layout(k, normals, floor), None, opts, progress,
+                              f"fit {MODELS[k]} (held out)") for k in rungs}
         hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, P]
         n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
         best = np.min(hm, axis=0)
@@ -359,7 +422,7 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
             sel = np.nonzero(choice == k)[0]
             if len(sel):
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
-                                          None))
+                                          progress, f"fit {MODELS[k]}"))
     out = _assemble(fits, choice, P, normals, floor, dt, surface)
     nobs = n_valid.astype(np.float32)
     empty = nobs < _MIN_OBSERVATIONS
@@ -379,7 +442,7 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
                tangent=f32(out["tangent"]), model=jnp.asarray(choice, jnp.int32), residual=f32(out["residual"]),
                heldout=f32(np.nan_to_num(heldout)), result=jnp.asarray(out["result"], jnp.int32),
                steps=jnp.asarray(out["steps"], jnp.int32), observed=jnp.asarray(nobs, jnp.float32),
-               uncertainty=f32(out["uncertainty"]), alpha_floor=floor)
+               uncertainty=f32(out["uncertainty"]), alpha_floor=floor, solver=solver_name)
 
 
 def _assemble(fits, choice, P, normals, floor, dt, surface):
@@ -396,7 +459,8 @@ def _assemble(fits, choice, P, normals, floor, dt, surface):
         # Fitted frame (surface-frame coordinates) to world space.
         R = np.asarray(jax.vmap(_fit_model.frame)(jnp.asarray(p["normal"]), jnp.asarray(p["phi"])), np.float64)
         t_l, n_l = R[:, 0], R[:, 2]
-        to_world = lambda v: v[:, 0:1] * T[sel] + v[:, 1:2] * B[sel] + v[:, 2:3] * N[sel]  # noqa: E731
+        Ts, Bs, Ns = T[sel], B[sel], N[sel]
+        to_world = lambda v, Ts=Ts, Bs=Bs, Ns=Ns: v[:, 0:1] * Ts + v[:, 1:2] * Bs + v[:, 2:3] * Ns  # noqa: E731
         out["normal"][sel] = to_world(n_l)
         out["tangent"][sel] = to_world(t_l)
         out["residual"][sel] = r["rms"]

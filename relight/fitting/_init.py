@@ -31,7 +31,7 @@ _MIN_PS_LIGHTS = 6
 def _quantile_masked(x, valid, q):
     """The q-quantile (lower) of x over ``valid`` entries (x [N])."""
     s = jnp.sort(jnp.where(valid, x, jnp.inf))
-    k = jnp.sum(valid)
+    k = jnp.sum(valid.astype(x.dtype))
     idx = jnp.clip(jnp.floor(q * (k - 1)).astype(jnp.int32), 0, x.shape[0] - 1)
     return s[idx]
 

@@ -14,14 +14,20 @@ damps with a plain identity):
 
 Rungs without a parameter leave it out of u (static layout per rung).
 
-Two forward models compute the same radiance. :func:`predict` composes
-``brdf``'s modules in the [N, 3] layout (the reference the tests hold the
-other to). :func:`residual_and_jacobian` is the solver's: observation arrays
-component-major ([3, N], so XLA vectorises over the lights), the specular
-lobe evaluated once per light instead of per channel, and the Jacobian built
-from its structure -- the diffuse columns in closed form, forward-mode
-tangents only through the lobe and the normal -- about 6x cheaper than
+One model, evaluated two ways. :func:`predict` is the reference: the one
+OLAT forward model, ``stage.reflected_radiance``, of the rung's BRDF composed
+from ``brdf``'s Modules (:func:`material`), in the [N, 3] layout and the
+fitted frame. :func:`residual_and_jacobian` is the solver's fast path: the
+same ``brdf`` kernels (``ggx_d_xyz``, ``ggx_g1_over_cos_xyz``, ``schlick``,
+``blinn_phong_lobe``, ``phong_exponent``) on component-major observation
+arrays ([3, N], so XLA vectorises over the lights), the specular lobe
+evaluated once per light instead of per channel, and the Jacobian built from
+its structure -- the diffuse columns in closed form, forward-mode tangents
+only through the lobe and the normal -- several times cheaper than
 ``jax.jacfwd`` of :func:`predict` (``scripts/profile_fit_step.py``).
+tests/relight/test_fit_model.py holds the fast path to :func:`predict` and
+:func:`predict` to ``stage.reflected_radiance`` of the fitted
+``LadderBRDF`` and to ``stage.simulate``, on every rung.
 :func:`materialised_residual` hands that Jacobian to Optimistix through a
 custom JVP, so each solver step evaluates the model once.
 """
@@ -34,9 +40,10 @@ import jax
 import jax.numpy as jnp
 
 import brdf
-from brdf import safe_normalize, safe_pow
+import stage
+from brdf import phong_exponent, safe_normalize
 
-from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, phong_exponent
+from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,63 +128,88 @@ def frame(normal, phi):
     return jnp.stack([c * t + s * b, c * b - s * t, normal])
 
 
+def _lobe(model: int, rho_s, alpha):
+    """The specular lobe of a rung as a brdf Module (None for Lambert), for
+    directions [N, 3]: rho_s [1] and alpha [2] of one sample become [1, 1]
+    parameters. Blinn-Phong: ``brdf.BlinnPhong`` with no diffuse term and
+    exponent ``brdf.phong_exponent(alpha_x)``; GGX: ``brdf.Microfacet`` with
+    GGX (alpha_y only on the anisotropic rung), Schlick F0 = rho_s and
+    separable Smith masking."""
+    if model == LAMBERT:
+        return None
+    col = lambda x: jnp.reshape(x, (1, 1))  # noqa: E731
+    ax = col(alpha[0])
+    if model == BLINN_PHONG:
+        return brdf.BlinnPhong(jnp.zeros((), ax.dtype), col(rho_s), phong_exponent(ax))
+    ay = col(alpha[1]) if model >= GGX_ANISO else None
+    return brdf.Microfacet(brdf.GGX(ax, ay), brdf.SchlickFresnel(col(rho_s)), "smith")
+
+
+def material(p: Params, lay: Layout):
+    """The rung's BRDF for one sample's parameters, composed from brdf's
+    Modules (Lambert rho_d plus :func:`_lobe`); directions [N, 3] in the
+    fitted frame give f_r [N, 3]. The same BRDF as :class:`LadderBRDF` with
+    ``include_diffuse=True`` (what :meth:`Fit.material` returns), written
+    separately so that the tests hold each to the other."""
+    diffuse = brdf.Lambert(jnp.reshape(p["rho_d"], (1, 3)))
+    lobe = _lobe(lay.model, p["rho_s"], p["alpha"])
+    return diffuse if lobe is None else brdf.Sum(diffuse, lobe)
+
+
 def specular(lay_model: int, rho_s, alpha, wi, wo):
-    """Specular lobe [N, 1] of a rung in its local frame (no cosine)."""
-    if lay_model == LAMBERT:
+    """Specular lobe [N, 1] of a rung in its local frame (no cosine; 0 below
+    the horizon): :func:`_lobe` evaluated."""
+    lobe = _lobe(lay_model, rho_s, alpha)
+    if lobe is None:
         return jnp.zeros(wi.shape[:-1] + (1,), wi.dtype)
-    ax, ay = alpha[0:1], alpha[1:2]
-    if lay_model == BLINN_PHONG:
-        s = phong_exponent(ax)[None]
-        cos_h = jnp.maximum(safe_normalize(wi + wo)[..., 2:3], 0.0)
-        lobe = rho_s[None] * (s + 8.0) / (8.0 * jnp.pi) * safe_pow(cos_h, s)
-        return jnp.where((wi[..., 2:3] > 0) & (wo[..., 2:3] > 0), lobe, 0.0)
-    if lay_model < GGX_ANISO:
-        ay = ax
-    m = brdf.Microfacet(brdf.GGX(ax[None], ay[None]), brdf.SchlickFresnel(rho_s[None]), "smith")
-    return m(wi, wo)
+    return lobe(wi, wo)
 
 
 # Smallest cosine of the view to the fitted normal (about 88.9 degrees).
 _COS_O_MIN = 0.02
 
 
-def predict(p: Params, lay: Layout, wi, wo, irr):
-    """Radiance [N, C] of one sample: wi [N, 3], wo [N, 3] in the surface's
-    frame, irradiance at normal incidence irr [N, C]."""
+def fitted_directions(p: Params, wi, wo):
+    """wi, wo [N, 3] from the surface's frame to the fitted frame (:func:`frame`),
+    with the view kept just above the fitted normal's horizon (cos >= _COS_O_MIN).
+
+    Every observation was seen by its camera, so the view cannot be below the
+    fitted normal's horizon: keep it just above (a tilted normal at a grazing
+    view would otherwise zero the whole prediction and its gradient, and the
+    solver would stop there reporting success). Fitter geometry, not physics."""
     R = frame(p["normal"], p["phi"])
     wi_f, wo_f = wi @ R.T, wo @ R.T
-    # Every observation was seen by its camera, so the view cannot be below the
-    # fitted normal's horizon: keep it just above (a tilted normal at a grazing
-    # view would otherwise zero the whole prediction and its gradient, and the
-    # solver would stop there reporting success).
     wo_f = safe_normalize(jnp.concatenate([wo_f[..., :2], jnp.maximum(wo_f[..., 2:3], _COS_O_MIN)], axis=-1))
-    cos_i = jnp.maximum(wi_f[..., 2:3], 0.0)
-    lit = wi_f[..., 2:3] > 0
-    f = jnp.where(lit, p["rho_d"] / jnp.pi, 0.0) + specular(lay.model, p["rho_s"], p["alpha"], wi_f, wo_f)
-    return f * cos_i * irr
+    return wi_f, wo_f
 
 
-def _specular_cm(model: int, rho_s, alpha, wi, wo, cos_i):
+def predict(p: Params, lay: Layout, wi, wo, irr):
+    """Radiance [N, C] of one sample: wi [N, 3], wo [N, 3] in the surface's
+    frame, irradiance at normal incidence irr [N, C]. The one OLAT model,
+    ``stage.reflected_radiance`` of the rung's :func:`material`, in the
+    fitted frame (:func:`fitted_directions`)."""
+    wi_f, wo_f = fitted_directions(p, jnp.asarray(wi), jnp.asarray(wo))
+    return stage.reflected_radiance(material(p, lay), wi_f, wo_f, jnp.asarray(irr))
+
+
+def _specular_cm(model: int, rho_s, alpha, wi, wo):
     """Specular lobe [N] of a rung, component-major wi, wo [3, N] in the fitted
-    frame with wo above the horizon; ``cos_i`` is wi_z clamped above 0. Same
-    lobes as :func:`specular` (GGX: Walter et al. 2007, eqs. 33-34, separable
-    Smith; Schlick 1994 Fresnel; Blinn-Phong normalised (s + 8) / (8 pi))."""
-    ax, ay = (jnp.maximum(a, brdf.ALPHA_MIN) for a in (alpha[0], alpha[1]))
+    frame with wo above the horizon; 0 for wi below it (GGX) or unmasked
+    (Blinn-Phong: the caller masks). The lobes of :func:`_lobe`, from brdf's
+    elementwise kernels on the component rows: GGX D (Walter et al. 2007,
+    eq. 33), separable Smith G1 / cos (eq. 34), Schlick 1994 Fresnel;
+    Blinn-Phong's normalised lobe with ``brdf.phong_exponent``."""
     h = wi + wo
     inv_h = jax.lax.rsqrt(jnp.maximum(jnp.sum(h * h, axis=0), 1e-30))
     if model == BLINN_PHONG:
-        s = phong_exponent(ax)
-        cos_h = jnp.maximum(h[2] * inv_h, 1e-30)
-        return rho_s[0] * (s + 8.0) / (8.0 * jnp.pi) * jnp.exp(s * jnp.log(cos_h))
+        return brdf.blinn_phong_lobe(h[2] * inv_h, rho_s[0], phong_exponent(alpha[0]))
+    ax, ay = alpha[0], (alpha[1] if model >= GGX_ANISO else None)
     m = h * inv_h[None]
-    cos_d = jnp.clip(jnp.sum(wi * m, axis=0), 0.0, 1.0)
-    t = (m[0] / ax) ** 2 + (m[1] / ay) ** 2 + m[2] ** 2
-    d = 1.0 / (jnp.pi * ax * ay * jnp.maximum(t * t, 1e-30))
-    g1_over_cos = lambda w, z: 2.0 / (z + jnp.sqrt((ax * w[0]) ** 2 + (ay * w[1]) ** 2 + z * z))  # noqa: E731
-    q = 1.0 - cos_d
-    q2 = q * q
-    fresnel = rho_s[0] + (1.0 - rho_s[0]) * (q2 * q2 * q)
-    return 0.25 * d * fresnel * g1_over_cos(wi, cos_i) * g1_over_cos(wo, wo[2])
+    d = brdf.ggx_d_xyz(m[0], m[1], m[2], ax, ay)
+    fresnel = brdf.schlick(jnp.sum(wi * m, axis=0), rho_s[0])
+    g = brdf.smith_g2_separable_over_cos(brdf.ggx_g1_over_cos_xyz(wi[0], wi[1], wi[2], ax, ay),
+                                         brdf.ggx_g1_over_cos_xyz(wo[0], wo[1], wo[2], ax, ay))
+    return d * fresnel * g
 
 
 def _shading_cm(q, lay: Layout, wi, wo):
@@ -195,9 +227,8 @@ def _shading_cm(q, lay: Layout, wi, wo):
     cos_i = jnp.where(lit, wi_f[2], 0.0)
     if lay.model == LAMBERT:
         return jnp.zeros_like(cos_i), cos_i
-    # The lobe is evaluated with wi_z kept above 0 so that it and its tangents
-    # are finite on unlit lights, where the mask then zeroes it.
-    lobe = _specular_cm(lay.model, p["rho_s"], p["alpha"], wi_f, wo_f, jnp.maximum(wi_f[2], 1e-6))
+    # The kernels are finite (with finite tangents) on unlit lights; the mask zeroes them there.
+    lobe = _specular_cm(lay.model, p["rho_s"], p["alpha"], wi_f, wo_f)
     return jnp.where(lit, lobe, 0.0), cos_i
 
 
@@ -278,5 +309,5 @@ def physical_vector(p: Params, lay: Layout):
     return jnp.concatenate(parts)
 
 
-__all__ = ["Layout", "Params", "unpack", "pack", "predict", "residual_and_jacobian", "materialised_residual", "robust",
-           "physical_vector", "frame", "LAMBERT", "BLINN_PHONG", "GGX", "GGX_ANISO"]
+__all__ = ["Layout", "Params", "unpack", "pack", "material", "fitted_directions", "predict", "residual_and_jacobian",
+           "materialised_residual", "robust", "physical_vector", "frame", "LAMBERT", "BLINN_PHONG", "GGX", "GGX_ANISO"]

@@ -25,42 +25,44 @@ import numpy as np
 import brdf
 import skin_bssrdf
 import stage
+from brdf import safe_normalize
 
-from ._driver import Fit
 from ..materials._maps import SUBSURFACE, LadderBRDF
+from ._driver import Fit
+from ._model import _COS_O_MIN
 
 _GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 
 
-def _transmittance(cos, eta):
-    return 1.0 - brdf.fresnel_dielectric(jnp.clip(cos, 0.0, 1.0), eta)
-
-
 def _terms(capture, surface, fitted: Fit, eta):
     """y = observed minus fitted specular [V, L, P, C], validity [V, L, P],
-    transmitted irradiance E [L, P, C], out-transmittance [V, P, 1], and the
-    local Lambert prediction of the fit [V, L, P, C] (for the model choice)."""
+    transmitted irradiance E [L, P, C] (``stage.subsurface_irradiance``), the
+    local views wo [V, P, 3] (for ``stage.subsurface_exitance``), and the local
+    Lambert prediction of the fit [V, L, P, C] (for the model choice)."""
     maps = fitted.maps(surface)
     fr = maps.frame(surface)
-    spec_brdf = LadderBRDF(maps.rho_d, maps.rho_s, maps.alpha, jnp.full_like(maps.model, SUBSURFACE)[:, None])
-    y, t_out, lam = [], [], []
+    # Each sample's fitted lobe alone (no diffuse term): Lambert samples have none.
+    spec_brdf = LadderBRDF(jnp.zeros_like(maps.rho_d), maps.rho_s, maps.alpha, maps.model[:, None])
+    y, wo_v, lam = [], [], []
     E = None
     valid = np.asarray(capture.mask)
     lit = np.any(valid, axis=0)  # [L, P]: a light's visibility does not depend on the view
     for v, cam in enumerate(capture.cameras):
         wi, wo, irr = stage.shading_directions(fr, capture.rig, cam)
-        cos_i = jnp.maximum(wi[..., 2:3], 0.0)
-        spec = jax.vmap(lambda w: spec_brdf(w, wo))(wi) * cos_i * irr
+        spec = stage.reflected_radiance_lights(spec_brdf, wi, wo, irr)
         y.append(np.asarray(capture.radiance[v], np.float64) - np.asarray(spec, np.float64))
-        lam.append(np.asarray(maps.rho_d[None] / jnp.pi * cos_i * irr, np.float64))
-        t_out.append(np.asarray(_transmittance(wo[:, 2:3], eta), np.float64))
+        # The fit's local Lambert term, with the view kept above the fitted horizon as the fitter keeps it.
+        wo_up = safe_normalize(jnp.concatenate([wo[:, :2], jnp.maximum(wo[:, 2:3], _COS_O_MIN)], axis=-1))
+        lam.append(np.asarray(stage.reflected_radiance_lights(brdf.Lambert(maps.rho_d), wi, wo_up, irr), np.float64))
+        wo_v.append(np.asarray(wo, np.float64))
         if E is None:
-            E = np.asarray(_transmittance(cos_i, eta) * cos_i * irr, np.float64) * lit[..., None]
-    return np.stack(y), valid, E, np.stack(t_out), np.stack(lam)
+            E = np.asarray(stage.subsurface_irradiance(wi, irr, eta, jnp.asarray(lit)), np.float64)
+    return np.stack(y), valid, E, np.stack(wo_v), np.stack(lam)
 
 
 def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, *, regions=None,
-                   mfp_range=(0.05, 8.0), grid: int = 8, refine: int = 8, iterations: int = 2, search_lights: int = 48, eta: float = 1.4,
+                   mfp_range=(0.05, 8.0), grid: int = 8, refine: int = 8, iterations: int = 2,
+                   search_lights: int = 48, eta: float = 1.4,
                    radius_mm: float | None = None, max_neighbours: int | None = None, progress=None) -> Fit:
     """Fit the diffuse mean free path (mm, per channel, per region) and the
     per-sample albedo of the subsurface rung, given a BRDF ``fitted`` by
@@ -72,6 +74,8 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
     (s^2 sqrt(2 n) for n observations); otherwise it keeps the fit's local
     Lambert term (mfp reported 0). ``radius_mm``: the operator's neighbour
     radius (default: 99% of the energy of the widest profile searched).
+    ``progress(phase, done, total)`` (``stage.Progress``): phase "fit
+    subsurface", one unit per evaluation of the mean-free-path search.
     Returns a new ``Fit`` with ``mfp`` [P, 3], ``rho_d`` = the profile albedo and
     ``model`` = SUBSURFACE where chosen.
     """
@@ -86,7 +90,9 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
     if labels.shape != (P,) or not np.issubdtype(labels.dtype, np.integer) or labels.min() < 0:
         raise ValueError(f"fit_subsurface: regions must be non-negative int labels of shape [{P}]")
     R = int(labels.max()) + 1
-    y, valid, E, t_out, lam = _terms(capture, surface, fitted, eta)
+    bar = stage.Phase(progress, "fit subsurface", iterations * (grid + refine))
+    y, valid, E, wo, lam = _terms(capture, surface, fitted, eta)
+    wo = jnp.asarray(wo)[:, None]  # [V, 1, P, 3] against the lights of S
     vm = valid[..., None].astype(np.float64)  # [V, L, P, 1]
     if radius_mm is None:
         widest = skin_bssrdf.Burley(jnp.full((C,), 0.5), jnp.full((C,), hi / 3.5))
@@ -106,7 +112,7 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
         """k [V, L, P, C]: the radiance per unit albedo for shape lengths d [P, C]."""
         prof = skin_bssrdf.Burley(jnp.ones_like(d), d)
         S = jax.vmap(lambda e: op.apply(prof, e))(E)  # [L, P, C]
-        return jnp.asarray(t_out)[:, None] / jnp.pi * S[None]
+        return stage.subsurface_exitance(S[None], wo, eta)
 
     def solve(mfp_rc, A):
         """Albedo [P, C] and per (region, channel) SSE for mfp [R, C] at albedo A (for d)."""
@@ -123,16 +129,12 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
     A = np.clip(np.asarray(fitted.rho_d, np.float64), 0.01, 1.0)
     g = np.geomspace(lo, hi, grid)
     mfp = np.full((R, C), np.sqrt(lo * hi))
-    steps = iterations * (grid + refine)
-    done = 0
     for _ in range(iterations):
         # Grid: the bracket around the best grid value of each region and channel.
         sse_g = []
         for x in g:
             sse_g.append(solve(np.full((R, C), x), A)[1])
-            done += 1
-            if progress is not None:
-                progress(done, steps)
+            bar.advance()
         k = np.argmin(np.stack(sse_g), axis=0)  # [R, C]
         a = np.log(g[np.maximum(k - 1, 0)])
         b = np.log(g[np.minimum(k + 1, grid - 1)])
@@ -150,9 +152,7 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
             fx = solve(np.exp(np.where(left, x1n, x2n)), A)[1]
             f1, f2 = np.where(left, fx, f2), np.where(left, f1, fx)
             x1, x2 = x1n, x2n
-            done += 1
-            if progress is not None:
-                progress(done, steps)
+            bar.advance()
         mfp = np.exp(0.5 * (a + b))
         A, sse = solve(mfp, A)
     # Final albedo and residuals on every light.
@@ -175,4 +175,5 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
     return Fit(rho_d=jnp.asarray(rho_d, dt), rho_s=fitted.rho_s, alpha=fitted.alpha, normal=fitted.normal,
                tangent=fitted.tangent, model=jnp.asarray(model, jnp.int32), residual=fitted.residual,
                heldout=fitted.heldout, result=fitted.result, steps=fitted.steps, observed=fitted.observed,
-               uncertainty=fitted.uncertainty, alpha_floor=fitted.alpha_floor, mfp=jnp.asarray(mfp_p, dt))
+               uncertainty=fitted.uncertainty, alpha_floor=fitted.alpha_floor, mfp=jnp.asarray(mfp_p, dt),
+               solver=fitted.solver)

@@ -11,23 +11,16 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, Float, Int
 
 import brdf
 import stage
-from brdf import safe_normalize, safe_pow
+from brdf import phong_exponent as phong_exponent  # brdf's one formula, re-exported (relight.phong_exponent)
+from brdf import safe_normalize
 
 # The model ladder, simplest first; each rung adds to the one before it.
 MODELS = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "subsurface")
 LAMBERT, BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE = range(len(MODELS))
-
-
-def phong_exponent(alpha: ArrayLike) -> Array:
-    """Blinn-Phong exponent with the same lobe width as a microfacet roughness
-    alpha: s = 2 / alpha^2 - 2 (Walter et al. 2007, sec. 5.2, the Beckmann-Phong
-    correspondence)."""
-    alpha = jnp.asarray(alpha)
-    return jnp.maximum(2.0 / (alpha * alpha) - 2.0, 0.0)
 
 
 class LadderBRDF(brdf.AbstractBRDF):
@@ -36,6 +29,9 @@ class LadderBRDF(brdf.AbstractBRDF):
         f_r = rho_d / pi * [model < SUBSURFACE]
               + rho_s (s + 8) / (8 pi) cos(theta_h)^s           (model = BLINN_PHONG, s = phong_exponent(alpha_x))
               + D_GGX(alpha_x, alpha_y) F_Schlick(rho_s) G / (4 cos_i cos_o)  (model >= GGX)
+
+    composed from brdf's kernels and Modules (``brdf.blinn_phong_lobe``,
+    ``brdf.phong_exponent``; ``brdf.Microfacet(GGX, SchlickFresnel, "smith")``).
 
     For ``SUBSURFACE`` samples the diffuse term is left out: that light leaves
     through the diffusion profile (see :meth:`MaterialMaps.profile`). Set
@@ -57,9 +53,8 @@ class LadderBRDF(brdf.AbstractBRDF):
         ax, ay = self.alpha[..., 0:1], self.alpha[..., 1:2]
         ay = jnp.where(model >= GGX_ANISO, ay, ax)
         ggx = brdf.Microfacet(brdf.GGX(ax, ay), brdf.SchlickFresnel(self.rho_s), "smith")(wi, wo)
-        s = phong_exponent(ax)
         cos_h = safe_normalize(wi + wo)[..., 2:3]
-        phong = self.rho_s * (s + 8.0) / (8.0 * jnp.pi) * safe_pow(jnp.maximum(cos_h, 0.0), s)
+        phong = brdf.blinn_phong_lobe(cos_h, self.rho_s, phong_exponent(ax))
         spec = jnp.where(model >= GGX, ggx, jnp.where(model == BLINN_PHONG, phong, 0.0))
         return jnp.where(active, diffuse + spec, 0.0)
 

@@ -1,6 +1,8 @@
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
+import optimistix as optx
 import pytest
 
 import brdf
@@ -151,8 +153,18 @@ def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
     lam = np.arange(P) % 2 == 0
     truth = relight.material_maps(surface, rho, f0 * 4, alpha, model=np.where(lam, 0, 2)).brdf(include_diffuse=True)
     cap = _noisy(stage.simulate(surface, rig, [cam], truth, lv, cv), 0.01, 9)
-    f = fit(cap, surface, model="auto")
+    calls = []
+    f = fit(cap, surface, model="auto", progress=lambda *a: calls.append(a))
     model = np.asarray(f.model)
+    # The progress protocol (stage.Progress): a held-out trial per rung, then
+    # the refits, which cover every sample once; each phase from 0 to its total.
+    first, last = {}, {}
+    for phase, done, total in calls:
+        first.setdefault(phase, (done, total))
+        last[phase] = (done, total)
+    assert {f"fit {m} (held out)" for m in relight.MODELS[:4]} <= set(last)
+    assert all(d == 0 for d, _ in first.values()) and all(d == t for d, t in last.values())
+    assert sum(t for phase, (_, t) in last.items() if "held out" not in phase) == P
     # Lambertian samples: the Lambert rung (held-out error within noise of any richer rung).
     assert np.mean(model[lam] == relight.MODELS.index("lambert")) > 0.8
     # Glossy samples need a lobe: never Lambert; mostly the isotropic GGX the data came from.
@@ -211,3 +223,47 @@ def test_uncertainty_matches_the_scatter_over_noise_draws(scene):
     # J^T J's one-sigma agrees with the empirical spread of 6 draws to within the
     # sampling error of a 6-draw standard deviation (~30%) and model nonlinearity.
     assert 0.5 < sigma / scatter < 2.0
+
+
+def _small(scene, n, seed):
+    surface, rig, cam, lv, cv = scene
+    sub = surface.subset(np.arange(n))
+    rho, f0, alpha = (x[:n] for x in _truth(surface.num_samples, seed=seed))
+    clean = stage.simulate(sub, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[:n], cv[:, :n])
+    return _noisy(clean, 0.01, seed + 1), sub
+
+
+def test_solver_object_is_the_named_solver(scene):
+    """``solver="lm"`` is optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6) with the
+    normal-equations Cholesky solver: that object gives the identical fit; with
+    Optimistix's default linear solver (QR) the same answer up to rounding
+    (1e-6 relative: the two solve the same damped systems in float64)."""
+    cap, sub = _small(scene, 24, seed=14)
+    n = sub.num_samples
+    calls = []
+    ref = fit(cap, sub, progress=lambda *a: calls.append(a))
+    assert ref.solver == "lm"
+    assert calls[0] == ("fit ggx", 0, n) and calls[-1] == ("fit ggx", n, n)
+    assert all(b[1] >= a[1] for a, b in zip(calls, calls[1:], strict=False))
+    same = fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6, linear_solver=lx.Normal(lx.Cholesky())))
+    qr = fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6))
+    assert qr.solver == "LevenbergMarquardt(rtol=1e-05, atol=1e-06)"
+    for k in ("rho_d", "rho_s", "alpha", "normal", "steps", "result"):
+        np.testing.assert_array_equal(np.asarray(getattr(same, k)), np.asarray(getattr(ref, k)))
+    for k in ("rho_d", "rho_s", "alpha"):
+        np.testing.assert_allclose(np.asarray(getattr(qr, k)), np.asarray(getattr(ref, k)), rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(qr.result), np.asarray(ref.result))
+
+
+def test_bad_solver_or_progress_is_refused(scene):
+    cap, sub = _small(scene, 8, seed=16)
+    with pytest.raises(ValueError, match="solver must be one of"):
+        fit(cap, sub, solver="newton")
+    with pytest.raises(TypeError, match="solver must be one of .* Optimistix solver object"):
+        fit(cap, sub, solver=optx.Newton(rtol=1e-5, atol=1e-6))  # a root finder, not a least-squares solver
+    with pytest.raises(TypeError, match="solver"):
+        fit(cap, sub, solver=lambda u: u)
+    with pytest.raises(ValueError, match="rtol / atol"):
+        fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6), rtol=1e-3)
+    with pytest.raises(TypeError, match="progress"):
+        fit(cap, sub, progress=3)

@@ -1,6 +1,8 @@
 """The solver's structured forward model (``_fit_model.residual_and_jacobian``)
 against the reference composed from ``brdf``'s modules (``_fit_model.predict``)
-and forward-mode AD of it, at ordinary and edge configurations."""
+and forward-mode AD of it, at ordinary and edge configurations; and the
+reference against the one OLAT model (``stage.reflected_radiance``,
+``stage.simulate``) of the material the fit reports, on every rung."""
 
 import itertools
 
@@ -9,6 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import brdf
+import stage
 from relight.fitting import _model as _fit_model
 from relight.fitting._model import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, Layout
 
@@ -101,3 +105,98 @@ def test_materialised_residual_linearises_to_its_jacobian(model):
     np.testing.assert_allclose(jt, J_ref @ t, atol=1e-9 * scale * lay.size)
     grad = jax.jit(jax.grad(lambda v: 0.5 * jnp.sum(res(v) ** 2)))(u)
     np.testing.assert_allclose(grad, J_ref.T @ r_ref, atol=1e-9 * scale * N)
+
+
+# ---------------------------------------------------------------------------
+# The reference itself against the one OLAT model (stage._forward) and
+# stage.simulate, through the fitted material the driver reports.
+
+P_ONE = 16  # samples per geometry (each its own random frame and parameters)
+L_ONE = 48  # lights
+
+
+def _surface(seed):
+    """P_ONE samples near the origin with random shading frames within 40
+    degrees of +z (the camera's side), right-handed (t x b = n)."""
+    rng = np.random.default_rng(seed)
+    n = _unit(rng.normal(size=(P_ONE, 3)) * [0.35, 0.35, 0.0] + [0.0, 0.0, 1.0])
+    t = _unit(np.cross(rng.normal(size=(P_ONE, 3)), n))
+    b = np.cross(n, t)
+    j = jnp.asarray
+    return stage.Surface(position=j(rng.uniform(-5.0, 5.0, (P_ONE, 3))), normal=j(n), tangent=j(t), bitangent=j(b),
+                         uv=j(np.zeros((P_ONE, 2))), area=j(np.ones(P_ONE)), texel_index=j(np.arange(P_ONE)),
+                         face=j(np.zeros(P_ONE, np.int64)), resolution=(1, P_ONE))
+
+
+def _fitted(lay, surface, seed):
+    """Random unconstrained parameters u [P, size] and the Fit the driver
+    assembles from them (fitted frame to world, per-rung maps)."""
+    from relight.fitting import _driver
+
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(P_ONE, lay.size)) * 0.6
+    if lay.normals:
+        u[:, -2:] *= 0.4  # fitted normals within ~25 degrees of the surface's
+    k = len(_driver._union_index(lay))
+    r = dict(u=u, rms=np.zeros(P_ONE), hmse=np.zeros(P_ONE), code=np.zeros(P_ONE, np.int32),
+             steps=np.zeros(P_ONE, np.int32), sigma=np.zeros((P_ONE, k)))
+    model = np.full(P_ONE, lay.model, np.int32)
+    out = _driver._assemble({lay.model: (np.arange(P_ONE), r)}, model, P_ONE, lay.normals, lay.alpha_floor,
+                            np.dtype(np.float64), surface)
+    j = jnp.asarray
+    f = _driver.Fit(rho_d=j(out["rho_d"]), rho_s=j(out["rho_s"]), alpha=j(out["alpha"]), normal=j(out["normal"]),
+                    tangent=j(out["tangent"]), model=j(model), residual=j(out["residual"]),
+                    heldout=j(np.zeros(P_ONE)), result=j(out["result"]), steps=j(out["steps"]),
+                    observed=j(np.full(P_ONE, 100.0)), uncertainty=j(out["uncertainty"]),
+                    alpha_floor=lay.alpha_floor)
+    return jnp.asarray(u), f
+
+
+@jax.jit(static_argnames=("lay",))
+def _predict_all(u, lay, wi, wo, irr):
+    """predict per sample: u [P, k], wi [L, P, 3], wo [P, 3], irr [L, P, C] -> [L, P, C]."""
+    one = lambda v, a, b, e: _fit_model.predict(_fit_model.unpack(v, lay), lay, a, jnp.broadcast_to(b, a.shape), e)  # noqa: E731
+    return jax.vmap(one, in_axes=(0, 1, 0, 1), out_axes=1)(u, wi, wo, irr)
+
+
+@pytest.mark.parametrize("model,normals", list(itertools.product(RUNGS, (False, True))))
+def test_reference_is_the_one_forward_model_of_the_fitted_material(model, normals):
+    """``predict`` (brdf Modules in the fitted frame, view clamp inactive)
+    equals ``stage.reflected_radiance`` of ``Fit.material()`` (the LadderBRDF)
+    in ``Fit.maps(surface).frame(surface)``, on random frames, parameters and
+    directions (a quarter of the lights below each horizon), and equals
+    ``stage.simulate`` of that material under a distant-light rig seen by an
+    orthographic camera: 1e-12 of the largest radiance (float64; the same
+    kernels composed two ways, so only rounding separates them)."""
+    lay = Layout(model, normals, 0.05)
+    surface = _surface(seed=20 + model)
+    u, f = _fitted(lay, surface, seed=30 + model + 4 * normals)
+    fr = f.maps(surface).frame(surface)
+    material = f.material()
+
+    # Random geometry straight through stage._forward.
+    rng = np.random.default_rng(40 + model)
+    wi_w = _unit(rng.normal(size=(L_ONE, P_ONE, 3)))
+    wo_w = _unit(np.asarray(fr.normal) + 0.5 * rng.normal(size=(P_ONE, 3)))
+    wo_w = np.where((np.sum(wo_w * np.asarray(fr.normal), -1, keepdims=True) > 0.1), wo_w, np.asarray(fr.normal))
+    irr = jnp.asarray(rng.uniform(0.5, 1.5, (L_ONE, P_ONE, 3)))
+    wi_w, wo_w = jnp.asarray(wi_w), jnp.asarray(wo_w)
+    ref = stage.reflected_radiance_lights(material, fr.to_local(wi_w), fr.to_local(wo_w), irr)
+    pred = _predict_all(u, lay, surface.to_local(wi_w), surface.to_local(wo_w), irr)
+    assert float(jnp.max(ref)) > 0 and float(jnp.mean(ref == 0)) > 0.1  # lit and unlit lights both present
+    np.testing.assert_allclose(pred, ref, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(ref))))
+
+    # stage.simulate of the same material on the same samples.
+    dirs = np.asarray(brdf.fibonacci_sphere(L_ONE))
+    rig = stage.make_rig(dirs, rng.uniform(0.5, 2.0, (L_ONE, 3)), near_field=False)
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731  (make_rig stores float32)
+    rig = stage.Rig(position=f64(rig.position), intensity=f64(rig.intensity), solid_angle=f64(rig.solid_angle),
+                    near_field=False)
+    cam = stage.orthographic((0.0, 0.0, 500.0), (0.0, 0.0, 0.0), extent_mm=40.0, width=32, height=32)
+    cap = stage.simulate(fr, rig, [cam], material, np.ones((P_ONE, L_ONE), bool), np.ones((1, P_ONE), bool),
+                         dtype=jnp.float64)
+    wi_s, wo_s, irr_s = stage.shading_directions(surface, rig, cam)
+    pred = _predict_all(u, lay, wi_s, wo_s, irr_s)
+    sim = cap.radiance[0]
+    assert float(jnp.max(sim)) > 0 and bool(jnp.any(~cap.mask[0]))
+    np.testing.assert_allclose(pred, sim, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(sim))))

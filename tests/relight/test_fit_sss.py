@@ -30,10 +30,13 @@ def sphere():
 def _capture(sphere, mfp, noise=0.01, seed=0):
     surface, rig, cam, lv, cv = sphere
     P = surface.num_samples
+    # The BRDF in the stage's dtype (float32), the profile in the operator's (float64): strict promotion.
+    dt = surface.position.dtype
     A = jnp.broadcast_to(jnp.array([0.8, 0.6, 0.45]), (P, 3))
-    spec = brdf.Microfacet(brdf.GGX(jnp.full((P, 1), 0.3)), brdf.SchlickFresnel(jnp.full((P, 1), 0.03)), "smith")
+    spec = brdf.Microfacet(brdf.GGX(jnp.full((P, 1), 0.3, dt)), brdf.SchlickFresnel(jnp.full((P, 1), 0.03, dt)),
+                           "smith")
     if mfp is None:
-        cap = stage.simulate(surface, rig, [cam], brdf.Sum(brdf.Lambert(A), spec), lv, cv)
+        cap = stage.simulate(surface, rig, [cam], brdf.Sum(brdf.Lambert(A.astype(dt)), spec), lv, cv)
     else:
         prof = skin_bssrdf.Burley.from_mean_free_path(A, jnp.broadcast_to(jnp.asarray(mfp), (P, 3)), config="dmfp")
         op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), 8.0,
@@ -48,8 +51,13 @@ def test_mean_free_path_recovered_within_15_percent(sphere):
     truth = np.array([1.2, 0.6, 0.3])
     cap, A = _capture(sphere, truth)
     f = relight.fit(cap, surface)
-    g = relight.fit_subsurface(cap, surface, f, radius_mm=8.0, mfp_range=(0.05, 4.0))
+    calls = []
+    g = relight.fit_subsurface(cap, surface, f, radius_mm=8.0, mfp_range=(0.05, 4.0),
+                               progress=lambda *a: calls.append(a))
     mfp = np.asarray(g.mfp)
+    # The progress protocol: one phase, 2 iterations x (8 grid + 8 golden-section) evaluations.
+    assert calls[0] == ("fit subsurface", 0, 32) and calls[-1] == ("fit subsurface", 32, 32)
+    assert [c[1] for c in calls] == list(range(33))
     assert np.all(np.asarray(g.model) == relight.MODELS.index("subsurface"))
     np.testing.assert_allclose(mfp[0], truth, rtol=0.15)
     # The profile albedo (total diffuse reflectance) is recovered per sample.
