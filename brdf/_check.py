@@ -22,7 +22,6 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from ._safe import safe_div
 from ._sampling import pdf_cosine_hemisphere, sample_cosine_hemisphere
 
-
 # Checks run once per model on moderate arrays: compile time dominates, so they
 # are compiled with XLA's cheap settings (about 4x faster to compile than the
 # default, measured on the all-model stability graph; arithmetic stays IEEE,
@@ -45,7 +44,7 @@ def _fast_jit(fun):
         if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return fun(*args)  # already inside a transformation: inline, no nested compile
         is_arr = tuple(eqx.is_array(x) for x in leaves)
-        static = tuple(None if a else x for x, a in zip(leaves, is_arr))
+        static = tuple(None if a else x for x, a in zip(leaves, is_arr, strict=True))
         try:
             key = (treedef, is_arr, static)
             hash(key)
@@ -55,12 +54,12 @@ def _fast_jit(fun):
 
             def inner(dyn):
                 it = iter(dyn)
-                full = [next(it) if a else x for x, a in zip(static, is_arr)]
+                full = [next(it) if a else x for x, a in zip(static, is_arr, strict=True)]
                 return fun(*jax.tree_util.tree_unflatten(treedef, full))
 
             options = FAST_COMPILE if jax.default_backend() == "cpu" else None
             cache[key] = jax.jit(inner, compiler_options=options)
-        return cache[key]([x for x, a in zip(leaves, is_arr) if a])
+        return cache[key]([x for x, a in zip(leaves, is_arr, strict=True) if a])
 
     return wrapped
 
@@ -97,7 +96,7 @@ def hemisphere_quadrature(
     edges = np.concatenate([[0.0], b, [np.pi / 2]])
     x, w = np.polynomial.legendre.leggauss(n_theta)
     thetas, wts = [], []
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
         thetas.append(0.5 * (b - a) * x + 0.5 * (a + b))
         wts.append(0.5 * (b - a) * w)
     theta = np.concatenate(thetas)
@@ -115,7 +114,12 @@ def _check_over(over):
 
 
 def directional_albedo(
-    model, w: Float[Array, "M 3"], n_theta: int = 64, n_phi: int = 64, breaks=(0.05, 0.15, 0.4), over: str = "wi"
+    model,
+    w: Float[Array, " 3"] | Float[Array, "M 3"],
+    n_theta: int = 64,
+    n_phi: int = 64,
+    breaks=(0.05, 0.15, 0.4),
+    over: str = "wi",
 ) -> Float[Array, "M C"]:
     """Directional albedo by :func:`hemisphere_quadrature`, <= 1 for an
     energy-conserving model (white furnace):
@@ -143,7 +147,7 @@ def _albedo_quadrature(model, w, dirs, weights, over):
 
 
 def directional_albedo_mc(
-    model, wo: Float[Array, "M 3"], key: PRNGKeyArray, n: int = 65536, sampler: str = "auto"
+    model, wo: Float[Array, " 3"] | Float[Array, "M 3"], key: PRNGKeyArray, n: int = 65536, sampler: str = "auto"
 ) -> tuple[Float[Array, "M C"], Float[Array, "M C"]]:
     """Directional albedo by importance-sampled Monte Carlo: the mean of
     f_r cos(theta_i) / pdf and its standard error, over ``n`` samples per wo.
@@ -290,7 +294,10 @@ def stability(model, wi: Float[Array, "n 3"], wo: Float[Array, "n 3"], batched: 
     is evaluated pair by pair under ``jax.vmap``.
     """
     vals, (gp, ga, gb) = _values_and_grads(model, wi, wo, batched)
-    finite = lambda t: bool(all(jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(t)))
+
+    def finite(t):
+        return bool(all(jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(t)))
+
     return {
         "value": finite(vals),
         "grad_directions": finite((ga, gb)),
@@ -306,7 +313,18 @@ def example_models(key: PRNGKeyArray, n: int, dtype=jnp.float64) -> dict:
     of the pairs exactly at the floor, a tenth exactly 1), exponents from 0 to
     1e4, albedos and Fresnel parameters across [0, 1] and typical metals.
     Used by the stability sweeps."""
-    from . import _beckmann, _cook_torrance, _diffuse, _distribution, _fresnel, _ggx, _lambert, _microfacet, _phong, _ward
+    from . import (
+        _beckmann,
+        _cook_torrance,
+        _diffuse,
+        _distribution,
+        _fresnel,
+        _ggx,
+        _lambert,
+        _microfacet,
+        _phong,
+        _ward,
+    )
 
     floor = _distribution.ALPHA_MIN
     ks = jax.random.split(key, 8)

@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 
 from ._atomic import atomic_write_bytes
 from ._base import AbstractBRDF, ParamSpec, check_directions, cos_theta
-from ._safe import dot, safe_atan2, safe_sqrt
+from ._safe import dot, safe_atan2, safe_sqrt, working_float
 
 MERL_RES = (90, 90, 180)  # theta_h, theta_d, phi_d bins
 MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)  # red, green, blue
@@ -66,7 +66,9 @@ def half_diff_coords(
     return theta_h, phi_h, theta_d, phi_d
 
 
-def half_diff_to_directions(theta_h, phi_h, theta_d, phi_d) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
+def half_diff_to_directions(
+    theta_h, phi_h, theta_d, phi_d
+) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
     """Inverse of :func:`half_diff_coords`: (wi, wo) as unit vectors [*batch, 3]."""
     theta_h, phi_h, theta_d, phi_d = jnp.broadcast_arrays(*(jnp.asarray(v) for v in (theta_h, phi_h, theta_d, phi_d)))
     st, ct = jnp.sin(theta_d), jnp.cos(theta_d)
@@ -147,7 +149,7 @@ def write_merl(path: str | os.PathLike, table) -> None:
     atomic_write_bytes(path, write)
 
 
-def read_merl(path: str | os.PathLike, interpolation: str = "nearest") -> "MERL":
+def read_merl(path: str | os.PathLike, interpolation: str = "nearest") -> MERL:
     """Read a MERL .binary file into a :class:`MERL` model (values in 1/sr, scales applied)."""
     path = Path(path)
     size = path.stat().st_size
@@ -192,7 +194,7 @@ class MERL(AbstractBRDF):
         """Tabulated f_r in 1/sr, shape [*batch, 3]; 0 below the horizon."""
         wi, wo = check_directions("MERL", wi, wo)
         active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
-        table = jnp.maximum(self.table, 0.0).astype(jnp.result_type(wi.dtype, jnp.float32))
+        table = jnp.maximum(self.table, 0.0).astype(working_float(wi.dtype))
         flat = table.reshape(3, -1)
         if self.interpolation == "nearest":
             i_h, i_d, i_p = merl_index(wi, wo)
@@ -204,7 +206,7 @@ class MERL(AbstractBRDF):
             coords = (u_h - 0.5, u_d - 0.5, u_p - 0.5)
             vals = 0.0
             base = [jnp.floor(c) for c in coords]
-            frac = [c - b for c, b in zip(coords, base)]
+            frac = [c - b for c, b in zip(coords, base, strict=True)]
             for corner in range(8):
                 bits = [(corner >> a) & 1 for a in range(3)]
                 w = 1.0

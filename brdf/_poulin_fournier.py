@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import numpy as np
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
@@ -227,10 +227,13 @@ def _specular_panels(edges, wy, wz, vy, vz, wi_dot_wo, n, n_nodes):
     shape = (1,) * nd + (n_nodes,)
     x = jnp.asarray(x.reshape(shape), edges[0].dtype)
     wgt = jnp.asarray(wgt.reshape(shape), edges[0].dtype)
-    ex = lambda v: jnp.expand_dims(v, -1) if v.ndim == nd else v  # 0-d parameters stay 0-d
+
+    def ex(v):  # 0-d parameters stay 0-d
+        return jnp.expand_dims(v, -1) if v.ndim == nd else v
+
     wy, wz, vy, vz, wi_dot_wo, n = map(ex, (wy, wz, vy, vz, wi_dot_wo, n))
     total = 0.0
-    for p0, p1 in zip(edges[:-1], edges[1:]):
+    for p0, p1 in zip(edges[:-1], edges[1:], strict=True):
         half = ex(0.5 * (p1 - p0))
         t = ex(0.5 * (p0 + p1)) + half * x
         st, ct = jnp.sin(t), jnp.cos(t)

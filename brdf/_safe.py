@@ -9,11 +9,31 @@ the masked lane yields a finite value and a zero (not NaN) gradient.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 # Smallest squared length treated as a direction. Below it a vector carries no
 # usable direction and normalisation returns the fallback (zero vector).
 _TINY_SQ = 1e-30
+
+
+def working_float(x: Array | np.dtype | type) -> np.dtype:
+    """The floating dtype a guarded computation on ``x`` (an array, or a dtype)
+    runs in: ``x``'s own when it is a float of at least 32 bits and not weakly
+    typed, else float32.
+
+    This is what ``jnp.result_type(x, jnp.float32)`` gives under JAX's standard
+    promotion (half precision, integers and weakly typed Python scalars are
+    computed in float32), written out so that it also holds under
+    ``jax_numpy_dtype_promotion="strict"``, where that query raises for float64.
+    """
+    if isinstance(x, (np.dtype, type)):
+        dtype, weak = np.dtype(x), False
+    else:
+        dtype, weak = np.dtype(x.dtype), bool(x.weak_type)
+    if not weak and jnp.issubdtype(dtype, jnp.floating) and jnp.finfo(dtype).bits >= 32:
+        return dtype
+    return np.dtype(jnp.float32)
 
 
 def safe_sqrt(x: ArrayLike) -> Array:
@@ -59,8 +79,9 @@ def safe_acos(x: ArrayLike) -> Array:
     1 - eps instead of Inf.
     """
     x = jnp.asarray(x)
-    eps = jnp.finfo(jnp.result_type(x, jnp.float32)).eps
-    return jnp.arccos(jnp.clip(x, -1 + eps, 1 - eps))
+    dtype = working_float(x)
+    eps = jnp.finfo(dtype).eps
+    return jnp.arccos(jnp.clip(x.astype(dtype), -1 + eps, 1 - eps))
 
 
 def safe_log(x: ArrayLike, floor: float = 1e-30) -> Array:

@@ -8,7 +8,7 @@ from jaxtyping import Array, Float
 
 import brdf
 from tests.brdf._util import from_cos
-from tests.helpers import assert_close
+from tests.helpers import REFUSED, assert_close
 
 
 class _Unguarded(brdf.AbstractBRDF):
@@ -35,7 +35,8 @@ def test_quadrature_weights():
 def test_albedo_of_lambert_by_quadrature_and_mc(key):
     m = brdf.Lambert(jnp.asarray([0.3, 0.9]))
     wo = from_cos([1.0, 0.5, 0.01], [0.0, 1.0, 2.0])
-    assert_close(brdf.check.directional_albedo(m, wo, 8, 8), jnp.broadcast_to(jnp.asarray([0.3, 0.9]), (3, 2)), rtol=1e-12)
+    expected = jnp.broadcast_to(jnp.asarray([0.3, 0.9]), (3, 2))
+    assert_close(brdf.check.directional_albedo(m, wo, 8, 8), expected, rtol=1e-12)
     # Cosine sampling is exact for Lambert: every sample's estimate is the albedo.
     mc, se = brdf.check.directional_albedo_mc(m, wo, key, n=256, sampler="cosine")
     assert_close(mc, jnp.broadcast_to(jnp.asarray([0.3, 0.9]), (3, 2)), rtol=1e-12)
@@ -68,5 +69,6 @@ def test_bad_arguments_raise():
         brdf.check.directional_albedo_mc(m, jnp.asarray([0.0, 0.0, 1.0]), jax.random.PRNGKey(0), sampler="ggx")
     with pytest.raises(ValueError, match="n_theta"):
         brdf.check.hemisphere_quadrature(0, 4)
-    with pytest.raises(ValueError, match="directions"):
+    # [2, 2] directions also break directional_albedo's annotation: the test-time checker refuses them first.
+    with pytest.raises(REFUSED, match="directions|'w'"):
         brdf.check.directional_albedo(m, jnp.zeros((2, 2)))

@@ -18,13 +18,13 @@ RES_TH, RES_TD, RES_PD = 90, 90, 360  # BRDFRead.cpp constants (phi_d stored ove
 # ---- a plain-Python port of MERL's reference code, kept independent of brdf ----
 def _rotate(v, axis, angle):
     c, s = math.cos(angle), math.sin(angle)
-    dot = sum(a * b for a, b in zip(v, axis))
+    dot = sum(a * b for a, b in zip(v, axis, strict=True))
     cross = (axis[1] * v[2] - axis[2] * v[1], axis[2] * v[0] - axis[0] * v[2], axis[0] * v[1] - axis[1] * v[0])
     return tuple(v[i] * c + axis[i] * dot * (1 - c) + cross[i] * s for i in range(3))
 
 
 def _ref_index(wi, wo):
-    h = [a + b for a, b in zip(wi, wo)]
+    h = [a + b for a, b in zip(wi, wo, strict=True)]
     n = math.sqrt(sum(x * x for x in h))
     h = [x / n for x in h]
     theta_h = math.acos(max(-1.0, min(1.0, h[2])))
@@ -52,7 +52,12 @@ def test_indexing_matches_reference_code(key):
     wi = jnp.concatenate([wi, jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.6, 0.0, 0.8]])])
     wo = jnp.concatenate([wo, jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [-0.6, 0.0, 0.8]])])
     ih, idd, ip = (np.asarray(x) for x in fjit(brdf.merl_index)(wi, wo))
-    ref = np.asarray([_ref_index(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(np.asarray(wi), np.asarray(wo))])
+    ref = np.asarray(
+        [
+            _ref_index(tuple(map(float, a)), tuple(map(float, b)))
+            for a, b in zip(np.asarray(wi), np.asarray(wo), strict=True)
+        ]
+    )
     # Directions a rounding error away from a bin edge may fall either side: allow
     # at most 1% of lookups to differ, and by one bin only.
     diff = np.abs(np.stack([ih, idd, ip], -1) - ref)

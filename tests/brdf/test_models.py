@@ -97,7 +97,8 @@ def test_ward_normalisations():
     a = brdf.check.directional_albedo(gm, wo, n_theta=48, n_phi=256, breaks=(0.025, 0.05, 0.1, 0.2, 0.4, 0.8))
     assert float(jnp.max(a)) <= 1.0, np.asarray(a)
     w = brdf.Ward(0.0, 1.0, 0.5, normalization="ward")
-    a = brdf.check.directional_albedo(w, from_cos([1e-3], 0.0), n_theta=48, n_phi=64, breaks=(0.25, 0.5, 1.0, 1.5, 1.56))
+    grazing = from_cos([1e-3], 0.0)
+    a = brdf.check.directional_albedo(w, grazing, n_theta=48, n_phi=64, breaks=(0.25, 0.5, 1.0, 1.5, 1.56))
     assert float(a[0, 0]) > 1.5, float(a[0, 0])
     # Both agree at the specular peak at normal incidence: rho_s / (4 pi ax ay).
     for m in (gm, brdf.Ward(0.0, 1.0, 0.2, 0.05, normalization="ward")):

@@ -63,7 +63,7 @@ def test_shadowing_matches_ray_cast():
     for d, h in GEOMETRIES:
         m = brdf.PoulinFournier(0.3, 0.6, 20.0, d, h)
         ours = np.asarray(ev_pairs(m, jnp.asarray(wi), jnp.asarray(wo)))[:, 0]
-        ref = np.array([_ray_cast_reference(a, b, 0.3, 0.6, 20.0, d, h) for a, b in zip(wi, wo)])
+        ref = np.array([_ray_cast_reference(a, b, 0.3, 0.6, 20.0, d, h) for a, b in zip(wi, wo, strict=True)])
         # the midpoint rule's error is O(1/m) at the visibility edges: ~1e-4 at m = 20000
         np.testing.assert_allclose(ours, ref, rtol=1e-3)
 
