@@ -100,7 +100,7 @@ def soa_variant(alpha: float):
     square roots (docs/brdf.md, Speed). XLA CSEs the shared D and G terms."""
     models = [
         brdf.Microfacet(brdf.GGX(jnp.float32(alpha)), brdf.ConductorFresnel(jnp.float32(e), jnp.float32(k)), "smith")
-        for e, k in zip(ETA, K)
+        for e, k in zip(ETA, K, strict=False)
     ]
 
     def soa(wi_t, wo_t):
@@ -207,7 +207,8 @@ def ffi_variant(alpha: float):
     if r.returncode != 0:
         return None, f"g++ failed: {r.stderr[-500:]}"
     handle = ctypes.cdll.LoadLibrary(lib)
-    jax.ffi.register_ffi_target("bench_brdf_ggx_conductor_f32", jax.ffi.pycapsule(handle.GgxConductorF32), platform="cpu")
+    jax.ffi.register_ffi_target("bench_brdf_ggx_conductor_f32", jax.ffi.pycapsule(handle.GgxConductorF32),
+                                platform="cpu")
     eta, k = jnp.asarray(ETA, jnp.float32), jnp.asarray(K, jnp.float32)
 
     def call(wi, wo):

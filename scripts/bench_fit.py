@@ -345,12 +345,14 @@ def main(argv=None):
     print(table)
     print()
     print(same)
-    print(f"\nscipy: mean {np.mean(nfev):.1f} residual evaluations outside the finite-difference Jacobians (MINPACK nfev, about one per iteration; each Jacobian adds 7) per texel")
+    nfev_line = (f"scipy: mean {np.mean(nfev):.1f} residual evaluations outside the finite-difference Jacobians "
+                 "(MINPACK nfev, about one per iteration; each Jacobian adds 7) per texel")
+    print("\n" + nfev_line)
     print(f"best: chunk={best['chunk']} steps/round={best['spr']}: {best['tps']:.1f} texels/s = "
           f"{best['tps'] / tps_sp:.1f}x scipy ({tps_sp:.1f} texels/s); goal >= 10x")
     md = out / "fit_bench.md"
-    md.write_text(f"Machine: {machine()}\n\n`python scripts/bench_fit.py {' '.join(sys.argv[1:] if argv is None else argv)}`"
-                  f"\n\n{table}\n\n{same}\n\nscipy: mean {np.mean(nfev):.1f} residual evaluations outside the finite-difference Jacobians (MINPACK nfev, about one per iteration; each Jacobian adds 7) per texel.\n")
+    cmd = " ".join(sys.argv[1:] if argv is None else argv)
+    md.write_text(f"Machine: {machine()}\n\n`python scripts/bench_fit.py {cmd}`\n\n{table}\n\n{same}\n\n{nfev_line}.\n")
 
     import matplotlib
     matplotlib.use("Agg")

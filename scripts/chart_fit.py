@@ -36,7 +36,7 @@ import relight
 import stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth  # noqa: E402
+from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 RUNGS = ("lambert", "blinn_phong", "ggx", "ggx_aniso")
 
@@ -127,7 +127,8 @@ def main(argv=None):
                      f"{r['compile']:.0f} | {r['e_rho']:.2%} | "
                      f"{'-' if np.isnan(r['e_alpha']) else format(r['e_alpha'], '.2%')} | {r['e_n']:.2f} | "
                      f"{r['resid']:.2e} | {r['failed']:.1%} | {r['steps']:.1f} |")
-    md = "\n".join(lines) + f"\n\nPeak RSS {maxrss_mib():.0f} MiB; total script time {time.perf_counter() - t_start:.0f} s.\n"
+    md = "\n".join(lines) + (f"\n\nPeak RSS {maxrss_mib():.0f} MiB; "
+                              f"total script time {time.perf_counter() - t_start:.0f} s.\n")
     print()
     print(md)
     (out / "fit_speed_accuracy.md").write_text(md)
@@ -137,14 +138,14 @@ def main(argv=None):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    marks = dict(zip(RUNGS, "osD^"))
-    cols = dict(zip(relight.SOLVERS, ("C0", "C1", "C2", "C3")))
+    marks = dict(zip(RUNGS, "osD^", strict=False))
+    cols = dict(zip(relight.SOLVERS, ("C0", "C1", "C2", "C3"), strict=False))
     for r in rows:
         kw = dict(marker=marks[r["model"]], color=cols[r["solver"]],
                   facecolors=cols[r["solver"]] if r["normals"] else "none", s=45)
         axes[0].scatter(r["t"], r["e_rho"], **kw)
         axes[1].scatter(r["t"], r["e_n"], **kw)
-    for ax, lab in zip(axes, ("median albedo error (relative)", "median normal error (deg)")):
+    for ax, lab in zip(axes, ("median albedo error (relative)", "median normal error (deg)"), strict=False):
         ax.set_xlabel(f"seconds to fit {P} texels (2-core CPU, compile excluded)")
         ax.set_ylabel(lab)
         ax.set_yscale("log")

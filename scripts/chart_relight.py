@@ -1,7 +1,7 @@
 """Model-based relighting methods: error against a converged Monte Carlo
 reference versus time, for the head scan under every environment map.
 
-    python scripts/chart_relight.py                 # 32 x 32 texels (950 samples), 8192-spp reference, ~10 min on 2 cores
+    python scripts/chart_relight.py   # 32 x 32 texels (950 samples), 8192-spp reference, ~10 min on 2 cores
     python scripts/chart_relight.py --texels 16 --ref-samples 1024   # quicker (a smoke run)
 
 Writes docs/figures/relight_methods.png and docs/figures/relight_methods.md
@@ -148,7 +148,7 @@ def main():
              "Time: median over maps of one warm call (ms).", "",
              "| method: setting | " + " | ".join(names) + " | time (ms) | visibility one-off (ms) |",
              "| --- | " + " | ".join("---" for _ in names) + " | --- | --- |"]
-    for lab, (m, l2, _) in zip(labels, rows):
+    for lab, (_m, l2, _) in zip(labels, rows, strict=False):
         errs = [results[(n, lab)][0] for n in names]
         ms = float(np.median([results[(n, lab)][1] for n in names]))
         vo = f"{vis_ms[l2]:.0f}" if l2 in vis_ms else "-"
@@ -173,9 +173,9 @@ def main():
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow), squeeze=False)
     colors = {"rig": "tab:blue", "dense": "tab:orange", "fast": "tab:green", "reference": "tab:red"}
     markers = ["o", "s", "^", "D"]
-    for ax, n in zip(axes.ravel(), names):
+    for ax, n in zip(axes.ravel(), names, strict=False):
         count = {}
-        for lab, (m, l2, _) in zip(labels, rows):
+        for lab, (m, _l2, _) in zip(labels, rows, strict=False):
             e, ms = results[(n, lab)]
             i = count.get(m, 0)
             count[m] = i + 1

@@ -157,7 +157,8 @@ def main(argv=None):
 def _table(rows, n_ref, ref_res, ref_radius):
     lines = [
         f"Reference: better dipole (skin1), sparse kernel over {n_ref} samples ({ref_res}^2 texels), "
-        f"radius {ref_radius:.1f} mm (99.9 % of the energy). Time: diffusion step, float32, median of 3, this machine's CPU.",
+        f"radius {ref_radius:.1f} mm (99.9 % of the energy). "
+        "Time: diffusion step, float32, median of 3, this machine's CPU.",
         "",
         "| texels | samples | method | time (ms) | setup (ms) | rel. RMS error |",
         "| ---: | ---: | --- | ---: | ---: | ---: |",
@@ -181,7 +182,7 @@ def _chart(rows, out):
         x = [max(r[3], 1e-2) for r in rr]
         y = [100 * r[5] for r in rr]
         ax.plot(x, y, "-" + markers[k % len(markers)], label=name)
-        for r, xi, yi in zip(rr, x, y):
+        for r, xi, yi in zip(rr, x, y, strict=False):
             ax.annotate(f"{r[0]}", (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7)
     ax.set_xscale("log")
     ax.set_yscale("log")

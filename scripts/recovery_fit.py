@@ -30,7 +30,7 @@ import relight
 import stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth  # noqa: E402
+from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 
 def main(argv=None):
@@ -73,7 +73,7 @@ def main(argv=None):
     fmt = lambda v, u: f"{v:.3%}" if u == "%" else f"{v:.3f}"  # noqa: E731
     lines = ["| quantity | measured | bar | met | 90th percentile |", "|---|---|---|---|---|"]
     p90 = [np.percentile(er, 90), np.percentile(ea[big], 90), np.percentile(en, 90)]
-    for (name, v, bar, u), q in zip(bars, p90):
+    for (name, v, bar, u), q in zip(bars, p90, strict=False):
         lines.append(f"| {name} | {fmt(v, u)} | < {fmt(bar, u)} | {'yes' if v < bar else 'NO'} | {fmt(q, u)} |")
     lines.append(f"| median F0 error | {np.median(e_f0):.2%} | - | - | {np.percentile(e_f0, 90):.2%} |")
     lines.append(f"| flagged failed | {failed.mean():.2%} | - | - | - |")

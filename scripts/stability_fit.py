@@ -43,7 +43,7 @@ import relight
 import stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, make_surface, tilt  # noqa: E402
+from bench_fit import FIG, capture_of, errors, front_camera, machine, make_surface, tilt
 
 ALPHAS = (0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
 COS_O = (1.0, 0.5, 0.2, 0.05)
@@ -91,7 +91,7 @@ def assert_finite(f: relight.Fit, what: str):
             raise AssertionError(f"{what}: non-finite values in Fit{jax.tree_util.keystr(path)}")
 
 
-def main(argv=None):
+def main(argv=None):  # noqa: C901 (a linear script: parse, simulate, fit, tabulate, plot)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lights", default="16,100,346")
     ap.add_argument("--solvers", default=",".join(relight.SOLVERS))
@@ -127,7 +127,7 @@ def main(argv=None):
         for L in lights:
             rig, cl = caps[L]
             res[sv][L] = []
-            for (name, _, _), cap in zip(CONDITIONS, cl):
+            for (name, _, _), cap in zip(CONDITIONS, cl, strict=False):
                 t0 = time.perf_counter()
                 f = relight.fit(cap, start_surf, model="ggx", normals=True, solver=sv,
                                 steps_per_round=args.steps_per_round, rounds=args.rounds)
@@ -153,7 +153,7 @@ def main(argv=None):
     ok_a = alpha[:, 0] >= 0.1
     for sv in solvers:
         for L in lights:
-            for (name, _, _), r in zip(CONDITIONS, res[sv][L]):
+            for (name, _, _), r in zip(CONDITIONS, res[sv][L], strict=False):
                 lines.append(f"| {sv} | {L} | {name} | {r['failed'].mean():.1%} | {r['wrong'].mean():.1%} | "
                              f"{np.median(r['er']):.2%} | {np.median(r['ea'][ok_a]):.2%} | {np.median(r['en']):.2f} | "
                              f"{r['failed'][graz].mean():.0%} | {r['wrong'][graz].mean():.0%} | {r['t']:.1f} |")
