@@ -20,7 +20,7 @@ that model has no renderer to check against here.
 Mitsuba's ``eval`` includes the cosine foreshortening factor: we divide by cos(theta_o).
 
 Usage:
-    pip install mitsuba          # into the venv; not a project dependency
+    pip install -e ".[test]"     # Mitsuba comes with the test extras
     python scripts/check_mitsuba.py [--pairs 2000] [--seed 0]
 
 Exits with status 1 if any model disagrees beyond its tolerance.
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
     try:
         import mitsuba  # noqa: F401
     except ImportError:
-        print("mitsuba is not installed: pip install mitsuba", file=sys.stderr)
+        print("mitsuba is not installed: pip install -e \".[test]\" (or pip install mitsuba)", file=sys.stderr)
         return 2
     results = cross_check(args.pairs, args.seed, args.variant)
     print(f"{'model':38s} {'pairs':>6s} {'max rel err':>12s} {'99.9% rel':>10s} {'tol':>8s}  result")

@@ -44,7 +44,7 @@ class Burley(AbstractProfile):
         self.albedo, self.d = channels(albedo, d)
 
     @classmethod
-    def from_mean_free_path(cls, albedo: ArrayLike, mfp: ArrayLike, config: str = "searchlight") -> "Burley":
+    def from_mean_free_path(cls, albedo: ArrayLike, mfp: ArrayLike, config: str = "searchlight") -> Burley:
         """Profile with d = mfp / s(A) from one of the paper's fits: ``"searchlight"``
         (eq. 5) or ``"diffuse"`` (eq. 6) with mfp = 1/sigma_t in mm, or ``"dmfp"`` (eq. 8)
         with mfp the diffuse mean free path 1/sigma_tr in mm."""

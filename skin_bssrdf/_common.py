@@ -65,10 +65,34 @@ def as_float(x) -> Array:
     return x
 
 
+def float_dtype(*xs) -> np.dtype:
+    """The one floating dtype that ``xs`` (floating arrays or Python scalars) are computed in: the widest
+    strongly typed one, with Python scalars (weakly typed) not widening it; the default float if all are weak.
+
+    Chosen by width and applied with ``astype``, never by implicit promotion, so a profile built from a
+    float32 map and a float64 constant works the same under ``jax_numpy_dtype_promotion="strict"``.
+    """
+    xs = [jnp.asarray(x) for x in xs]
+    strong = [x.dtype for x in xs if jnp.issubdtype(x.dtype, jnp.floating) and not getattr(x, "weak_type", False)]
+    if not strong:
+        return jnp.dtype(jnp.result_type(float))
+    return max(strong, key=lambda d: jnp.finfo(d).bits)
+
+
+def cast_floats(tree, dtype):
+    """Every floating array leaf of ``tree`` (a profile, a tuple of arrays) cast to ``dtype``."""
+
+    def cast(x):
+        return x.astype(dtype) if eqx.is_inexact_array(x) and x.dtype != dtype else x
+
+    return jax.tree_util.tree_map(cast, tree)
+
+
 def channels(*xs) -> tuple[Array, ...]:
-    """Broadcast parameters to one common shape ``[..., C]`` (scalars become ``[1]``)."""
+    """Broadcast parameters to one common shape ``[..., C]`` (scalars become ``[1]``) and one dtype
+    (:func:`float_dtype`)."""
     xs = [as_float(x) for x in xs]
-    dtype = jnp.result_type(*xs)
+    dtype = float_dtype(*xs)
     shape = jnp.broadcast_shapes(*(x.shape for x in xs))
     if len(shape) == 0:
         shape = (1,)
@@ -88,10 +112,10 @@ def align(*xs) -> tuple[Array, ...]:
 
 
 def radius_arg(owner: str, r: ArrayLike, dtype) -> Array:
-    """Validate a radius array and return ``r[..., None]`` (a channel axis for broadcasting)."""
+    """Validate a radius array and return ``r[..., None]`` (a channel axis for broadcasting), cast to the
+    profile's ``dtype``: a profile is evaluated in its parameters' precision, whatever the radii's."""
     check(owner, "r (radius, mm)", r, lo=0.0)
-    r = as_float(r)
-    r = r.astype(jnp.result_type(r, dtype))
+    r = as_float(r).astype(dtype)
     return r[..., None]
 
 
@@ -179,7 +203,7 @@ def fresnel_moments(eta: ArrayLike) -> tuple[Array, Array]:
 @jax.jit
 def _fresnel_moments(eta):
     mu_c2 = jnp.clip(1 - 1 / eta**2, 0, 1)
-    mu_c = jnp.sqrt(jnp.where(mu_c2 > 0, mu_c2, 1)) * (mu_c2 > 0)
+    mu_c = jnp.where(mu_c2 > 0, jnp.sqrt(jnp.where(mu_c2 > 0, mu_c2, 1)), 0)
     x = jnp.asarray(0.5 * (_GL_X + 1), eta.dtype)  # mu_t nodes on (0, 1)
     w = jnp.asarray(0.5 * _GL_W, eta.dtype)
     e = eta[..., None]

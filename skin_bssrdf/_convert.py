@@ -23,7 +23,16 @@ from jaxtyping import Array, ArrayLike, Float
 from brdf import safe_div, safe_sqrt
 
 from ._better_dipole import _total as _better_total
-from ._common import ETA_MAX, ETA_MIN, as_float, channels, check, fresnel_diffuse_reflectance, fresnel_moments, one_minus_exp_over
+from ._common import (
+    ETA_MAX,
+    ETA_MIN,
+    as_float,
+    channels,
+    check,
+    fresnel_diffuse_reflectance,
+    fresnel_moments,
+    one_minus_exp_over,
+)
 from ._dipole import _total as _dipole_total
 
 MODELS = ("dipole", "better_dipole")

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._common import AbstractProfile, align, as_float, check, radius_arg
+from ._common import AbstractProfile, align, as_float, check, float_dtype, radius_arg
 from ._radius import energy_radius
 
 # d'Eon et al. 2007 (Table 1 / GPU Gems 3 Figure 14-13): variances in mm^2 and
@@ -48,11 +48,11 @@ class SumOfGaussians(AbstractProfile):
             raise ValueError(
                 f"SumOfGaussians: weights must have shape [..., K={variances.shape[0]}, C], got {weights.shape}"
             )
-        dtype = jnp.result_type(weights, variances)
+        dtype = float_dtype(weights, variances)
         self.weights, self.variances = weights.astype(dtype), variances.astype(dtype)
 
     @classmethod
-    def skin_deon2007(cls, albedo: ArrayLike = 1.0) -> "SumOfGaussians":
+    def skin_deon2007(cls, albedo: ArrayLike = 1.0) -> SumOfGaussians:
         """d'Eon et al. 2007's six-Gaussian RGB fit of the three-layer skin profile,
         with total diffuse reflectance ``albedo`` per channel (shape [..., 3] or scalar)."""
         check("SumOfGaussians.skin_deon2007", "albedo", albedo, lo=0.0, hi=1.0)
@@ -152,7 +152,9 @@ def fit_sum_of_gaussians(
     Not differentiable (the fit is a preprocessing step).
     """
     if profile.batch_shape != ():
-        raise ValueError(f"fit_sum_of_gaussians: profile parameters must have shape [C], got batch {profile.batch_shape}")
+        raise ValueError(
+            f"fit_sum_of_gaussians: profile parameters must have shape [C], got batch {profile.batch_shape}"
+        )
     total = np.asarray(profile.total(), float)
     lo = float(np.min(np.asarray(energy_radius(profile, 0.02))))
     hi = float(np.max(np.asarray(energy_radius(profile, 0.998))))

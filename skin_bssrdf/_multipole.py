@@ -102,7 +102,8 @@ class Multipole(AbstractProfile):
         return _profile(r, *self._params(), n=self.n_pairs, bottom=False, cumulative=True)
 
     def total(self) -> Float[Array, "*pbatch channel"]:
-        """Integral of 2 pi r R(r) of the truncated sum: alpha'/2 sum_i [sgn(z_{r,i}) e^{-s|z_{r,i}|} - sgn(z_{v,i}) e^{-s|z_{v,i}|}]."""
+        """Integral of 2 pi r R(r) of the truncated sum:
+        alpha'/2 sum_i [sgn(z_{r,i}) e^{-s|z_{r,i}|} - sgn(z_{v,i}) e^{-s|z_{v,i}|}]."""
         return _totals(*self._params(), n=self.n_pairs)[0]
 
     def total_transmittance(self) -> Float[Array, "*pbatch channel"]:

@@ -44,7 +44,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy.spatial import cKDTree
 
-from ._common import AbstractProfile
+from ._common import AbstractProfile, cast_floats, float_dtype
 
 # Rows per chunk are chosen so that one chunk's gathered neighbours
 # (chunk x K x C floats, C = 3) stay near this many elements (~50 MB in float64).
@@ -85,7 +85,7 @@ class DiffusionOperator(eqx.Module):
         dtype=None,
         workers: int = 1,
         receivers: Int[ArrayLike, " receiver"] | None = None,
-    ) -> "DiffusionOperator":
+    ) -> DiffusionOperator:
         """Neighbour lists of every sample within ``radius_mm`` (3-D distance) by KD-tree.
 
         ``positions`` [P, 3] in mm, ``areas`` [P] in mm^2 (> 0). ``max_neighbours``
@@ -177,10 +177,10 @@ class DiffusionOperator(eqx.Module):
     def apply(
         self,
         profile: AbstractProfile,
-        irradiance: Float[Array, "sample channel"],
+        irradiance: Float[ArrayLike, "sample channel"],
         *,
         normalize: bool = False,
-    ) -> Float[Array, "sample channel"]:
+    ) -> Float[Array, "receiver channel"]:
         """Radiant exitance M_i = sum_j w_ij E_j (see the module docstring), [R, C]
         (R = P unless the operator was built for a subset of ``receivers``).
 
@@ -194,7 +194,7 @@ class DiffusionOperator(eqx.Module):
             raise ValueError(f"DiffusionOperator.apply: irradiance must have shape [P={P}, C], got {E.shape}")
         return self._map(profile, E, normalize=normalize)
 
-    def captured(self, profile: AbstractProfile) -> Float[Array, "sample channel"]:
+    def captured(self, profile: AbstractProfile) -> Float[Array, "receiver channel"]:
         """Row sums sum_j w_ij [R, C]: the exitance under unit irradiance (before normalisation)."""
         C = profile.total().shape[-1]
         return self._map(profile, jnp.ones((self.num_samples, C), self.distance.dtype), normalize=False)
@@ -210,8 +210,10 @@ class DiffusionOperator(eqx.Module):
         """(neighbour weights w_ij [P, K, C] aligned with ``index``, self weights w_ii [P, C]),
         unchunked: for small P (tests, inspection) or to precompute a fixed profile."""
         self._per_row(profile)
+        op, profile, _ = self._common_dtype(profile)
         per_sample = profile.batch_shape != ()
-        return _weights(profile, self.distance, self.valid, self.area[self.index], self.self_radius, per_sample=per_sample)
+        area = op.area[op.index]
+        return _weights(profile, op.distance, op.valid, area, op.self_radius, per_sample=per_sample)
 
     # --- internals ----------------------------------------------------------------
     def _per_row(self, profile):
@@ -222,12 +224,26 @@ class DiffusionOperator(eqx.Module):
             )
         return profile
 
+    def _common_dtype(self, profile, *arrays):
+        """The operator, the profile and ``arrays`` in one floating dtype, the widest of them, cast
+        explicitly: a float32 operator applied with a float64 profile (or the reverse) is not an
+        implicit promotion, which ``jax_numpy_dtype_promotion="strict"`` refuses."""
+        params = jax.tree_util.tree_leaves(eqx.filter(profile, eqx.is_inexact_array))
+        dt = float_dtype(self.distance, *params, *arrays)
+        fields = (self.distance, self.area, self.self_radius)
+        op = eqx.tree_at(lambda o: (o.distance, o.area, o.self_radius), self, cast_floats(fields, dt))
+        return op, cast_floats(profile, dt), tuple(cast_floats(jnp.asarray(a), dt) for a in arrays)
+
     def _map(self, profile, E, *, normalize):
         self._per_row(profile)
+        op, profile, (E,) = self._common_dtype(profile, E)
+        return op._map_common(profile, E, normalize=normalize)
+
+    def _map_common(self, profile, E, *, normalize):
         per_sample = profile.batch_shape != ()
         P, K = self.index.shape  # receivers x neighbours
         if P == 0:
-            return jnp.zeros((0, E.shape[1]), jnp.result_type(E, self.distance))
+            return jnp.zeros((0, E.shape[1]), E.dtype)
         n = min(self.chunk, P)
         n_chunks = -(-P // n)
         pad = n_chunks * n - P

@@ -102,7 +102,8 @@ def _blur_variable(num, den, sigma, half, axis):
 
     def step(acc, k):
         an, ad = acc
-        g = jnp.exp(-(k.astype(s.dtype) ** 2) / (2 * s * s)) * (jnp.abs(k) <= jnp.ceil(TRUNCATE * s))
+        kf = k.astype(s.dtype)
+        g = jnp.where(jnp.abs(kf) <= jnp.ceil(TRUNCATE * s), jnp.exp(-(kf**2) / (2 * s * s)), 0)
         sn = jax.lax.dynamic_slice_in_dim(num_p, k + half, size, axis)
         sd = jax.lax.dynamic_slice_in_dim(den_p, k + half, size, axis)
         return (an + g[..., None] * sn, ad + g * sd), None
@@ -149,7 +150,7 @@ class TextureSpaceDiffusion(eqx.Module):
         resolution: tuple[int, int],
         positions: Float[ArrayLike, "sample 3"],
         dtype=None,
-    ) -> "TextureSpaceDiffusion":
+    ) -> TextureSpaceDiffusion:
         """Texel layout and stretch from the samples' texels and 3-D positions (mm).
 
         ``texel_index`` is [P, 2] (row, col) or [P] row-major flat indices (``stage.Surface.texel_index``).
@@ -166,7 +167,9 @@ class TextureSpaceDiffusion(eqx.Module):
             ti = np.stack([ti // W, ti % W], axis=1)
         P = ti.shape[0] if ti.ndim == 2 else -1
         if ti.ndim != 2 or ti.shape[1] != 2 or not np.issubdtype(ti.dtype, np.integer):
-            raise ValueError(f"TextureSpaceDiffusion.build: texel_index must be integer [P, 2] (row, col), got {ti.dtype} {ti.shape}")
+            raise ValueError(
+                f"TextureSpaceDiffusion.build: texel_index must be integer [P, 2] (row, col), got {ti.dtype} {ti.shape}"
+            )
         if pos.shape != (P, 3) or not np.all(np.isfinite(pos)):
             raise ValueError(f"TextureSpaceDiffusion.build: positions must be finite [P={P}, 3] (mm), got {pos.shape}")
         if H < 1 or W < 1 or np.any(ti < 0) or np.any(ti[:, 0] >= H) or np.any(ti[:, 1] >= W):
@@ -252,7 +255,8 @@ class TextureSpaceDiffusion(eqx.Module):
         or per sample [P, K, C] (variances sorted increasing, as in d'Eon et al. 2007).
         ``max_variance_mm2``: see ``blurs`` (needed only when the variances are traced)."""
         if not isinstance(profile, SumOfGaussians):
-            raise ValueError(f"TextureSpaceDiffusion.apply: profile must be a SumOfGaussians, got {type(profile).__name__}")
+            got = type(profile).__name__
+            raise ValueError(f"TextureSpaceDiffusion.apply: profile must be a SumOfGaussians, got {got}")
         b = self.blurs(profile.variances, irradiance, max_variance_mm2)  # [K, P, C]
         w = profile.weights
         if w.ndim == 2:

@@ -1,13 +1,19 @@
 """Strict test settings (after optimistix's conftest): float64 available for the
-mathematics, rank promotion raises, warnings are errors (pyproject)."""
+mathematics, rank promotion raises, dtype promotion is strict (no silent float32 ->
+float64 or int -> float mixing), warnings are errors, and every function in brdf,
+skin_bssrdf, stage and relight has its jaxtyping annotations checked at call time
+(pyproject's --jaxtyping-packages, with the checker in tests/helpers.py)."""
 
 from pathlib import Path
 
 import jax
 import pytest
 
+import tests.helpers  # noqa: F401  (the --jaxtyping-packages checker, tests.helpers.typechecker, must be loaded)
+
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
+jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -1,8 +1,20 @@
 """Per-dtype tolerances shared by the tests. A looser tolerance is local to its
 test and carries a comment saying why."""
 
+import beartype
+import jax
 import jax.numpy as jnp
+import jaxtyping
 import numpy as np
+
+# The runtime checker behind pytest's --jaxtyping-packages (pyproject): beartype as optimistix's tests configure it
+# (strategy On: every element of a container is checked, not one at random, so a failure is not left to chance),
+# plus PEP 484's numeric tower, so an int passes a `float` parameter as mypy and pyright read the annotation
+# (`look_at(..., fov_deg=11)` is a correct call). Named here rather than written "beartype.beartype(conf=...)" in
+# pyproject: with more than one package listed, jaxtyping's plugin splits a typechecker with parentheses wrongly.
+typechecker = beartype.beartype(
+    conf=beartype.BeartypeConf(strategy=beartype.BeartypeStrategy.On, is_pep484_tower=True)
+)
 
 TOL = {
     jnp.float64: dict(rtol=1e-10, atol=1e-12),
@@ -23,5 +35,10 @@ def assert_close(a, b, dtype=jnp.float64, **override):
 
 def assert_finite(*xs):
     for x in xs:
-        for leaf in __import__("jax").tree_util.tree_leaves(x):
+        for leaf in jax.tree_util.tree_leaves(x):
             assert np.all(np.isfinite(np.asarray(leaf))), "non-finite value"
+
+
+# How a boundary refuses bad input: its own ValueError naming the field, or, when the argument also breaks the
+# function's annotation, the test-time checker's jaxtyping.TypeCheckError (which names the parameter) first.
+REFUSED = (ValueError, jaxtyping.TypeCheckError)

@@ -14,7 +14,7 @@ SKIN1 = dict(sigma_a=jnp.array([0.032, 0.17, 0.48]), sigma_s_prime=jnp.array([0.
 
 
 def test_total_matches_quadrature():
-    # total() is eq. 5; the quadrature integrates eq. 4 numerically. 1e-4 is the bar;
+    # total() is eq. 5; the quadrature integrates eq. 4 numerically. 1e-4 absolute is the required agreement;
     # the closed forms are exact, so it also holds at 1e-8 relative in float64.
     albedo = jnp.array([0.0, 0.05, 0.3, 0.7, 0.95, 0.999])
     st = 1.7

@@ -1,0 +1,291 @@
+"""The import graph of the source tree, read with ``ast`` (nothing is imported).
+
+Imports point down the rooms: brdf <- skin_bssrdf <- stage <- relight, with no
+cycles between the packages or between relight's subpackages; inside relight
+the CLI sits on top (no one imports it, and its commands do not import each
+other), and the fitter and the renderer sit side by side above io, envmap,
+image and materials. Every import counts, also one inside a function: a lazy
+import is still a dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.metadata
+import re
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("brdf", "skin_bssrdf", "stage", "relight")
+
+# (b) what each top-level package may import of ours.
+ALLOWED = {
+    "brdf": set(),
+    "skin_bssrdf": {"brdf"},
+    "stage": {"brdf", "skin_bssrdf"},
+    "relight": {"brdf", "skin_bssrdf", "stage"},
+}
+
+# Third-party imports: the lower rooms stay light (docs/ARCHITECTURE.md's "may import" column; jaxtyping, for the
+# annotations, is everywhere). relight may use any declared dependency.
+THIRD_PARTY = {
+    "brdf": {"jax", "equinox", "numpy", "jaxtyping"},
+    "skin_bssrdf": {"jax", "equinox", "numpy", "jaxtyping", "scipy"},
+    "stage": {"jax", "equinox", "numpy", "jaxtyping", "scipy", "trimesh"},
+    "relight": None,
+}
+
+# (d) relight's layering (docs/ARCHITECTURE.md): a subpackage imports only subpackages of a lower layer, so
+# image and materials import none, io may use image and materials, envmap io (to read map files), fitting and
+# render everything below them but not each other, and cli all.
+LAYER = {"image": 0, "materials": 0, "io": 1, "envmap": 2, "fitting": 3, "render": 3, "cli": 4}
+
+
+@dataclass(frozen=True)
+class Edge:
+    source: str  # importing module, dotted
+    target: str  # imported module, dotted (resolved to one of ours)
+    where: str  # path:line
+
+    def __str__(self):
+        return f"{self.where}: {self.source} imports {self.target}"
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the four packages."""
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _package_of(module: str) -> str:
+    """The package a module's relative imports start from."""
+    return module if MODULES[module].name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _ours(name: str) -> str | None:
+    """The longest prefix of ``name`` that is one of our modules (None if none is)."""
+    parts = name.split(".")
+    for n in range(len(parts), 0, -1):
+        candidate = ".".join(parts[:n])
+        if candidate in MODULES:
+            return candidate
+    return None
+
+
+def _imports(module: str) -> list[Edge]:
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    rel = path.relative_to(ROOT).as_posix()
+    edges = []
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = _package_of(module).split(".")
+                base = base[: len(base) - (node.level - 1)]
+                stem = ".".join(base + ([node.module] if node.module else []))
+            else:
+                stem = node.module
+            # `from pkg import name` imports pkg, and pkg.name too when that is a module
+            targets = [stem] + [f"{stem}.{alias.name}" for alias in node.names]
+        for name in targets:
+            target = _ours(name)
+            edge = Edge(module, target, f"{rel}:{node.lineno}")
+            if target is not None and target != module and edge not in edges:
+                edges.append(edge)
+    return edges
+
+
+EDGES = [edge for module in MODULES for edge in _imports(module)]
+
+
+def _third_party() -> list[tuple[str, str, str]]:
+    """(module, top-level import name, path:line) of every import that is neither ours nor the standard library."""
+    out = []
+    for module, path in MODULES.items():
+        rel = path.relative_to(ROOT).as_posix()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            else:
+                continue
+            for name in names:
+                top = name.split(".")[0]
+                if top not in PACKAGES and top not in sys.stdlib_module_names:
+                    out.append((module, top, f"{rel}:{node.lineno}"))
+    return out
+
+
+THIRD = _third_party()
+
+
+def _top(module: str) -> str:
+    return module.split(".")[0]
+
+
+def _relight_unit(module: str) -> str:
+    """relight's subpackage of a module ("relight" for the package root itself)."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if len(parts) > 1 else "relight"
+
+
+def _cycles(nodes: set[str], edges: list[tuple[str, str, Edge]]) -> list[list[str]]:
+    """Strongly connected components with more than one node (Tarjan)."""
+    graph = {n: sorted({b for a, b, _ in edges if a == n and b != n}) for n in nodes}
+    index, low, on_stack, stack, out = {}, {}, set(), [], []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for n in sorted(nodes):
+        if n not in index:
+            visit(n)
+    return out
+
+
+def _explain(components, edges) -> str:
+    lines = []
+    for comp in components:
+        lines.append(f"cycle among {', '.join(comp)}:")
+        lines += [f"  {e}" for a, b, e in edges if a in comp and b in comp and a != b]
+    return "\n".join(lines)
+
+
+def test_the_tree_is_found():
+    assert {"brdf", "skin_bssrdf", "stage", "relight", "relight.cli", "relight.fitting"} <= set(MODULES)
+    assert len(EDGES) > 50  # the parser sees the imports (a silent empty graph would pass everything)
+    pairs = {(e.source, e.target) for e in EDGES}
+    assert ("relight", "relight.fitting") in pairs  # `from . import fitting` in a package's __init__.py
+    assert ("skin_bssrdf._convert", "brdf") in pairs  # `from brdf import safe_div, ...`
+
+
+def test_no_cycles_between_packages():
+    edges = [(_top(e.source), _top(e.target), e) for e in EDGES]
+    components = _cycles(set(PACKAGES), edges)
+    assert not components, _explain(components, edges)
+
+
+def test_no_cycles_between_relight_subpackages():
+    inside = [e for e in EDGES if _top(e.source) == "relight" and _top(e.target) == "relight"]
+    edges = [(_relight_unit(e.source), _relight_unit(e.target), e) for e in inside]
+    nodes = {_relight_unit(m) for m in MODULES if _top(m) == "relight"}
+    components = _cycles(nodes, edges)
+    assert not components, _explain(components, edges)
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_packages_import_only_down(package):
+    bad = [e for e in EDGES if _top(e.source) == package and _top(e.target) not in ALLOWED[package] | {package}]
+    allowed = ", ".join(sorted(ALLOWED[package])) or "nothing of ours"
+    assert not bad, f"{package} may import {allowed}; found:\n" + "\n".join(map(str, bad))
+
+
+@pytest.mark.parametrize("package", [p for p in PACKAGES if THIRD_PARTY[p] is not None])
+def test_lower_packages_stay_light(package):
+    bad = [
+        f"{where}: {module} imports {top}"
+        for module, top, where in THIRD
+        if _top(module) == package and top not in THIRD_PARTY[package]
+    ]
+    allowed = ", ".join(sorted(THIRD_PARTY[package]))
+    assert not bad, f"{package} may import (third party) {allowed}; found:\n" + "\n".join(bad)
+
+
+def _normal(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def test_every_third_party_import_is_a_declared_dependency():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    declared = {_normal(re.match(r"[A-Za-z0-9_.-]+", d).group(0)) for d in project["dependencies"]}
+    provides = importlib.metadata.packages_distributions()  # import name -> distributions (installed ones)
+    bad = []
+    for module, top, where in THIRD:
+        dists = {_normal(d) for d in provides.get(top, [top])}
+        if not dists & declared:
+            bad.append(f"{where}: {module} imports {top} ({', '.join(sorted(dists))}: not in [project.dependencies])")
+    assert not bad, "\n".join(sorted(set(bad)))
+
+
+def test_only_the_cli_imports_the_cli():
+    bad = [e for e in EDGES if _relight_unit(e.target) == "relight.cli" and _relight_unit(e.source) != "relight.cli"]
+    assert not bad, "relight.cli sits on top; found:\n" + "\n".join(map(str, bad))
+
+
+def _is_command(module: str) -> bool:
+    """relight/cli/<command>.py: a public module of relight.cli (not its __init__, not _common or other _private)."""
+    parts = module.split(".")
+    return len(parts) == 3 and parts[:2] == ["relight", "cli"] and not parts[2].startswith("_")
+
+
+def test_cli_commands_do_not_import_each_other():
+    # A command may use relight.cli._common (and other private helpers); another command,
+    # or the dispatcher relight/cli/__init__.py (which imports every command), it may not.
+    bad = [e for e in EDGES if _is_command(e.source) and (_is_command(e.target) or e.target == "relight.cli")]
+    assert not bad, "one CLI command imports another:\n" + "\n".join(map(str, bad))
+
+
+def test_every_relight_subpackage_has_a_layer():
+    subs = {_relight_unit(m).removeprefix("relight.") for m in MODULES if _top(m) == "relight" and m != "relight"}
+    assert subs - {"data"} == set(LAYER), "a new relight subpackage needs its place in LAYER (docs/ARCHITECTURE.md)"
+
+
+@pytest.mark.parametrize("sub", sorted(LAYER, key=LAYER.get))
+def test_relight_layering(sub):
+    unit = f"relight.{sub}"
+    allowed = sorted(s for s in LAYER if LAYER[s] < LAYER[sub])
+    bad = [
+        e
+        for e in EDGES
+        if _relight_unit(e.source) == unit
+        and _relight_unit(e.target).startswith("relight.")
+        and _relight_unit(e.target) != unit
+        and LAYER.get(_relight_unit(e.target).removeprefix("relight."), -1) >= LAYER[sub]
+    ]
+    # the root package imports every subpackage but cli (relight/__init__.py): importing it imports them all
+    if sub != "cli":
+        bad += [e for e in EDGES if _relight_unit(e.source) == unit and e.target == "relight"]
+    may = f"only {', '.join(allowed)}" if allowed else "no other relight subpackage"
+    assert not bad, f"{unit} may import {may}; found:\n" + "\n".join(map(str, bad))
+
+
+def test_the_cycle_finder_finds_cycles():
+    e = Edge("a", "b", "x.py:1")
+    assert _cycles({"a", "b", "c"}, [("a", "b", e), ("b", "c", e), ("c", "a", e)]) == [["a", "b", "c"]]
+    assert _cycles({"a", "b", "c"}, [("a", "b", e), ("b", "c", e), ("a", "c", e)]) == []
