@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._capture import Capture
 
@@ -52,16 +52,17 @@ class Sensor(eqx.Module):
     read_noise: Float[Array, ""] = eqx.field(default=0.0, converter=_f32)
     shot_noise: bool = eqx.field(static=True, default=False)
     full_well: Float[Array, ""] = eqx.field(default=float("inf"), converter=_f32)
-    bits: Float[Array, ""] = eqx.field(default=0, converter=lambda b: jnp.asarray(0 if b is None else b, jnp.int32))
+    bits: Int[Array, ""] = eqx.field(default=0, converter=lambda b: jnp.asarray(0 if b is None else b, jnp.int32))
 
     def __check_init__(self):
         for name, lo, strict in (("exposure", 0, True), ("gain", 0, True), ("black_level", 0, False),
                                  ("read_noise", 0, False), ("full_well", 0, True)):
             v = getattr(self, name)
             if _concrete(v):
-                bad = np.any(np.isnan(np.asarray(v))) or (name != "full_well" and not np.all(np.isfinite(np.asarray(v)))) or (np.any(np.asarray(v) <= lo) if strict else np.any(np.asarray(v) < lo))
-                if bad:
-                    raise ValueError(f"Sensor.{name} must be finite and {'>' if strict else '>='} {lo}, got {np.asarray(v)}")
+                a = np.asarray(v)
+                out_of_range = np.any(a <= lo) if strict else np.any(a < lo)
+                if np.any(np.isnan(a)) or (name != "full_well" and not np.all(np.isfinite(a))) or out_of_range:
+                    raise ValueError(f"Sensor.{name} must be finite and {'>' if strict else '>='} {lo}, got {a}")
         if _concrete(self.bits) and not (0 <= int(self.bits) <= 24):
             raise ValueError(f"Sensor.bits must be in [1, 24] (0 or None: no quantisation), got {int(self.bits)}")
         if _concrete(self.white_balance) and np.any(np.asarray(self.white_balance) <= 0):
@@ -81,18 +82,25 @@ class Sensor(eqx.Module):
             raise ValueError(f"Sensor.white_balance has shape {wb.shape} for {shape[-1]} channels")
         return wb.reshape((1,) * (len(shape) - 1) + (shape[-1],))
 
+    def _as(self, dtype, *names):
+        """The float32 parameters ``names`` cast to ``dtype`` (the radiance's: float64 in
+        float64 tests), so the arithmetic with it needs no implicit promotion."""
+        return tuple(jnp.asarray(getattr(self, n), dtype) for n in names)
+
     def mean(self, radiance: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Expected DN (before clipping and rounding): wb exposure L / gain + black_level."""
         L = jnp.asarray(radiance)
-        return self._wb(L.shape, L.dtype) * self.exposure * L / self.gain + self.black_level
+        exposure, gain, black_level = self._as(L.dtype, "exposure", "gain", "black_level")
+        return self._wb(L.shape, L.dtype) * exposure * L / gain + black_level
 
     def variance(self, radiance: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Model variance of DN (before clipping): (wb/gain)^2 (shot e + read^2) + 1/12 if quantised."""
         L = jnp.asarray(radiance)
-        e = self.exposure * L
-        var_e = (e if self.shot_noise else 0.0 * e) + self.read_noise**2
+        exposure, gain, read_noise = self._as(L.dtype, "exposure", "gain", "read_noise")
+        e = exposure * L
+        var_e = (e if self.shot_noise else 0.0 * e) + read_noise**2
         q = jnp.where(self.bits > 0, 1.0 / 12.0, 0.0)
-        return (self._wb(L.shape, L.dtype) / self.gain) ** 2 * var_e + q
+        return (self._wb(L.shape, L.dtype) / gain) ** 2 * var_e + q
 
     def expose(self, key, radiance: Float[Array, "*batch channel"]):
         """Raw digital numbers and the saturation flags: (DN [*batch, C] float,
@@ -125,7 +133,8 @@ class Sensor(eqx.Module):
     def to_radiance(self, dn: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Invert the mean response: (DN - black_level) gain / (wb exposure), in radiance units."""
         dn = jnp.asarray(dn)
-        return (dn - self.black_level) * self.gain / (self._wb(dn.shape, dn.dtype) * self.exposure)
+        exposure, gain, black_level = self._as(dn.dtype, "exposure", "gain", "black_level")
+        return (dn - black_level) * gain / (self._wb(dn.shape, dn.dtype) * exposure)
 
 
 @eqx.filter_jit

@@ -28,7 +28,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._latlong import EnvMap, latlong_directions, sample_latlong
 
@@ -90,7 +90,7 @@ def _bilinear(img: Array, row: Array, col: Array) -> Array:
 
 
 @functools.partial(jax.jit, static_argnames=('size', 'dtype'))
-def angular_directions(size: int, dtype=None) -> tuple[Float[Array, "N N 3"], Float[Array, "N N"]]:
+def angular_directions(size: int, dtype=None) -> tuple[Float[Array, "N N 3"], Bool[Array, "N N"]]:
     """Directions of the pixel centres of a size x size angular map, and the
     mask of pixels inside the disk (directions outside it are meaningless)."""
     dt = _float(dtype)
@@ -154,7 +154,7 @@ def angular_to_latlong(img: Float[ArrayLike, "N N C"], height: int) -> EnvMap:
 
 
 @functools.partial(jax.jit, static_argnames=('size', 'dtype'))
-def mirrorball_directions(size: int, dtype=None) -> tuple[Float[Array, "N N 3"], Float[Array, "N N"]]:
+def mirrorball_directions(size: int, dtype=None) -> tuple[Float[Array, "N N 3"], Bool[Array, "N N"]]:
     """Reflected directions seen at the pixel centres of a mirror-ball image, and
     the mask of pixels on the ball."""
     dt = _float(dtype)
@@ -187,7 +187,8 @@ def direction_to_mirrorball(d: Float[ArrayLike, "*batch 3"], size: int) -> tuple
     ok = hn > 1e-12
     h = h / jnp.where(ok, hn, 1)
     # d = -z: every rim point reflects it; pick the top of the rim (u, v) = (0, 1).
-    h = jnp.where(ok, h, jnp.stack([jnp.zeros_like(d[..., 0]), jnp.ones_like(d[..., 0]), jnp.zeros_like(d[..., 0])], axis=-1))
+    zero, one = jnp.zeros_like(d[..., 0]), jnp.ones_like(d[..., 0])
+    h = jnp.where(ok, h, jnp.stack([zero, one, zero], axis=-1))
     return _uv_to_pixel(h[..., 0], h[..., 1], size)
 
 

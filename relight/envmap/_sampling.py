@@ -10,14 +10,12 @@ constant: ``pdf(d) = P(pixel) / dOmega(pixel)``.
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from ._latlong import EnvMap, direction_to_latlong, latlong_solid_angles
+from ._latlong import EnvMap, _widest_float, direction_to_latlong, latlong_solid_angles
 
 __all__ = ["EnvSampler", "envmap_pdf", "envmap_sampler", "sample_envmap"]
 
@@ -37,7 +35,7 @@ class EnvSampler(eqx.Module):
     """
 
     pixel_prob: Float[Array, "H W"]
-    marginal_cdf: Float[Array, "H1"]
+    marginal_cdf: Float[Array, " H1"]
     conditional_cdf: Float[Array, "H W1"]
     radiance: Float[Array, "H W C"]
 
@@ -51,7 +49,7 @@ def envmap_sampler(env: EnvMap) -> EnvSampler:
     """
     rad = env.radiance
     h, w, c = rad.shape
-    dt = jnp.result_type(rad.dtype, jnp.float32)
+    dt = _widest_float(rad.dtype, jnp.float32)
     if c == 3:
         lum = rad.astype(dt) @ jnp.asarray(_LUMA, dt)
     else:
@@ -86,7 +84,7 @@ def _pick(cdf: Array, u: Array) -> tuple[Array, Array]:
 @jax.jit
 def sample_envmap(
     sampler: EnvSampler, u: Float[ArrayLike, "N 2"]
-) -> tuple[Float[Array, "N 3"], Float[Array, "N"], Float[Array, "N C"], Int[Array, "N 2"]]:
+) -> tuple[Float[Array, "N 3"], Float[Array, " N"], Float[Array, "N C"], Int[Array, "N 2"]]:
     """Map uniform ``u in [0, 1)^2`` to directions distributed as the sampler's pdf.
 
     Returns:
@@ -100,11 +98,13 @@ def sample_envmap(
     row, fy = _pick(sampler.marginal_cdf, u[:, 0])
     col, fx = jax.vmap(_pick)(sampler.conditional_cdf[row], u[:, 1])
     # Uniform in solid angle inside the pixel: azimuth linear, cos(theta) linear.
-    t0 = jnp.pi * row / h
-    t1 = jnp.pi * (row + 1) / h
+    # The pixel indices enter the angles as floats of the tables' dtype (strict promotion: no int x float).
+    row_f, col_f = row.astype(dt), col.astype(dt)
+    t0 = jnp.pi * row_f / h
+    t1 = jnp.pi * (row_f + 1) / h
     cos_t = jnp.cos(t0) + fy * (jnp.cos(t1) - jnp.cos(t0))
     sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))
-    phi = 2 * jnp.pi * (col + fx) / w - jnp.pi
+    phi = 2 * jnp.pi * (col_f + fx) / w - jnp.pi
     d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
     dom = latlong_solid_angles(h, w, dt)[row, 0]
     pdf = sampler.pixel_prob[row, col] / dom

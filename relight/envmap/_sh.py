@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._latlong import EnvMap, latlong_directions, latlong_solid_angles
+from ._latlong import EnvMap, _widest_float, latlong_directions, latlong_solid_angles
 
 __all__ = [
     "sh_basis",
@@ -90,7 +90,7 @@ def sh_basis(directions: Float[ArrayLike, "*batch 3"], order: int) -> Float[Arra
 @functools.partial(jax.jit, static_argnums=1)
 def _project(radiance: Array, order: int) -> Array:
     h, w, c = radiance.shape
-    dt = jnp.result_type(radiance.dtype, jnp.float32)
+    dt = _widest_float(radiance.dtype, jnp.float32)
     dirs = latlong_directions(h, w, dt)  # [H, W, 3]
     weighted = radiance.astype(dt) * latlong_solid_angles(h, w, dt)[..., None]  # L dOmega
 
@@ -111,7 +111,9 @@ def sh_project(env: EnvMap, order: int = 2) -> Float[Array, "K C"]:
 
 
 @jax.jit
-def sh_reconstruct(coeffs: Float[ArrayLike, "K C"], directions: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch C"]:
+def sh_reconstruct(
+    coeffs: Float[ArrayLike, "K C"], directions: Float[ArrayLike, "*batch 3"]
+) -> Float[Array, "*batch C"]:
     """``sum_k coeffs[k] Y_k(d)``: the band-limited map at ``directions``."""
     coeffs = jnp.asarray(coeffs)
     order = _order_of(coeffs.shape[0])

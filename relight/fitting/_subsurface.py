@@ -98,7 +98,7 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
         widest = skin_bssrdf.Burley(jnp.full((C,), 0.5), jnp.full((C,), hi / 3.5))
         radius_mm = float(np.max(np.asarray(skin_bssrdf.energy_radius(widest, 0.99))))
     op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), radius_mm,
-                                             max_neighbours=max_neighbours, dtype=jnp.float64)
+                                             max_neighbours=max_neighbours)
     # The search runs on a subset of lights: each evaluation applies the
     # operator once per light, and a few dozen lights pin one length per channel.
     sub = np.unique(np.linspace(0, L - 1, min(search_lights, L)).round().astype(int))

@@ -242,11 +242,7 @@ def _strength(lt: Lighting, rotation) -> tuple[Array, Array, bool]:
             e = jnp.broadcast_to(e, (e.shape[0], lt.env.radiance.shape[-1]))
         fn = light_weights if lt.settings["weights"] == "voronoi" else light_weights_barycentric
         kw = {"supersample": lt.settings["supersample"]} if lt.settings["weights"] == "voronoi" else {}
-        # relight.envmap's Voronoi integrals mix float32 (the nearest-light
-        # pick) into a float64 map's sums through jnp.result_type, which strict
-        # dtype promotion refuses; the numbers are the same under "standard".
-        with jax.numpy_dtype_promotion("standard"):
-            w = fn(lt.env, d_env, e, **kw).astype(dt)
+        w = fn(lt.env, d_env, e, **kw).astype(dt)
         # w_l times the light's own strength: intensity (near field, divided by
         # the squared distance in the kernel) or irradiance (distant).
         inten = jnp.asarray(rig.intensity, dt)

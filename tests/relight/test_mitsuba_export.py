@@ -119,7 +119,7 @@ def _directional_albedo_normal_incidence(rho_d, f0, alpha, n=256):
     wi = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
     wo = np.broadcast_to([0.0, 0.0, 1.0], wi.shape)
     m = brdf.lambert_ggx(np.asarray([rho_d]), np.asarray([[f0]]), np.asarray([[alpha]]))
-    f = np.asarray(m(wi, wo))
+    f = np.asarray(m(jnp.asarray(wi), jnp.asarray(wo)))  # brdf Modules take JAX arrays (their annotations)
     dw = (np.sin(T) * (np.pi / 2 / n) * (2 * np.pi / (2 * n))).reshape(-1, 1)
     return np.sum(f * wi[:, 2:3] * dw, axis=0)
 
