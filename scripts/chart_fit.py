@@ -1,7 +1,7 @@
 """Speed against accuracy of ``relight.fit`` for each solver and model rung.
 
     python scripts/chart_fit.py                                  # 512 texels, the lean grid (11 fits)
-    python scripts/chart_fit.py --grid full --texels 100000      # issue 7's 10^5 texels, every solver x rung x normals
+    python scripts/chart_fit.py --grid full --texels 100000      # 10^5 texels, every solver x rung x normals
     python scripts/chart_fit.py --solvers lm,dogleg --models ggx --normals true
 
 Scene as scripts/bench_fit.py (Light Stage X, 346 lights, 50 mm sphere,

@@ -1,4 +1,4 @@
-"""Synthetic recovery on the Light Stage X with 1% noise: issue 7's bars.
+"""Synthetic recovery on the Light Stage X with 1% noise, against the accuracy bars.
 
     python scripts/recovery_fit.py                   # 1024 texels, LM, Cauchy loss
     python scripts/recovery_fit.py --texels 4096 --solver dogleg --noise 0.02
@@ -10,7 +10,7 @@ samples lie below 0.1, where the bar does not apply), shading normals tilted 5
 degrees from the geometric frame the fit starts from. Radiance x (1 + noise
 N(0, 1)). Fit: ``relight.fit(capture, surface, model="ggx", normals=True)``.
 
-Bars (issue 7): median diffuse albedo error < 1% (relative, all channels),
+Bars: median diffuse albedo error < 1% (relative, all channels),
 median roughness error < 5% for alpha >= 0.1 (relative), median normal error
 < 0.5 degree. Also per roughness band, the 90th percentiles, and the
 uncertainty the fit reports against the actual error (z = error / sigma).

@@ -28,7 +28,7 @@ def from_cos(c, phi, dtype=jnp.float64):
 
 
 def edge_directions(dtype=jnp.float64):
-    """Pairs [N, 3] covering the edges named in the brief: grazing (cos = 1e-7 and
+    """Pairs [N, 3] covering the edges every model must survive: grazing (cos = 1e-7 and
     exactly 0) on either side, wi = wo, mirror pairs, normal incidence, below horizon."""
     cs = [1e-7, 0.0, 1.0, 0.5, 1e-7, 0.3]
     pairs_i, pairs_o = [], []

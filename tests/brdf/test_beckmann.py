@@ -14,7 +14,7 @@ from tests.helpers import assert_close
 
 @pytest.mark.parametrize("alpha", [(0.05, None), (0.5, None), (0.1, 0.4)])
 def test_beckmann_projected_area_is_one(alpha):
-    # integral D cos(theta_m) dwm = 1 to 1e-4 (the brief); the Gaussian tail is
+    # integral D cos(theta_m) dwm = 1 to 1e-4 (the project's quadrature bar); the Gaussian tail is
     # light, so a few panels scaled to the roughness suffice.
     dist = brdf.Beckmann(*alpha)
     a = min(x for x in alpha if x is not None)

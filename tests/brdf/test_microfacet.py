@@ -23,7 +23,7 @@ def projected_area(dist, alpha_min):
 
 @pytest.mark.parametrize("alpha", [(0.05, None), (0.3, None), (1.0, None), (0.1, 0.5), (0.7, 0.2)])
 def test_ggx_projected_area_is_one(alpha):
-    # Walter et al. 2007: D is normalised over projected area. Tolerance 1e-4 (the brief).
+    # Walter et al. 2007: D is normalised over projected area. Tolerance 1e-4 (the project's quadrature bar).
     # The GGX tail falls as theta'^-4 only, so the quadrature carries many panels.
     dist = brdf.GGX(*alpha)
     area = projected_area(dist, min(a for a in alpha if a is not None))

@@ -6,7 +6,6 @@ import os
 import numpy as np
 import pytest
 
-from relight.io._atomic import atomic_path
 from relight.io import (
     ExrPart,
     ImageFormatError,
@@ -18,6 +17,7 @@ from relight.io import (
     write_exr_channels,
     write_exr_parts,
 )
+from relight.io._atomic import atomic_path
 
 
 @pytest.fixture

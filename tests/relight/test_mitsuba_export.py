@@ -4,6 +4,7 @@ project dependency) the scene renders and matches the fitted model on a sphere."
 
 import xml.etree.ElementTree as ET
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 

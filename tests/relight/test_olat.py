@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from relight.render._olat import relight_olat, relight_olat_sweep
 from relight.envmap import (
     EnvMap,
     envmap_irradiance,
@@ -15,6 +14,7 @@ from relight.envmap import (
     latlong_solid_angles,
     light_weights,
 )
+from relight.render._olat import relight_olat, relight_olat_sweep
 from tests.helpers import REFUSED, assert_close
 from tests.relight._rig import envmap, fibonacci_sphere, light_stage_x
 
