@@ -14,6 +14,8 @@ from ._camera import look_at as look_at
 from ._camera import orthographic as orthographic
 from ._camera import save_cameras as save_cameras
 from ._capture import Capture as Capture
+from ._files import read_json as read_json
+from ._files import read_light_table as read_light_table
 from ._forward import incident_light as incident_light
 from ._forward import reflected_radiance as reflected_radiance
 from ._forward import reflected_radiance_lights as reflected_radiance_lights

@@ -33,6 +33,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from brdf import atomic_write_text, safe_div, safe_normalize
 
+from ._files import read_json
+
 
 class Camera(eqx.Module):
     """Camera: intrinsics ``K`` [3, 3], rotation ``R`` [3, 3] and translation
@@ -238,16 +240,6 @@ def camera_from_dict(doc: object, where: str = "camera") -> Camera:
                   width=int(w), height=int(h), orthographic=model == "orthographic")
 
 
-def _read_json(path: Path, what: str):
-    """The parsed JSON of ``path``; FileNotFoundError / ValueError naming the file."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-
-
 def save_cameras(path, cameras, names=None) -> Path:
     """Write cameras to a JSON camera file (module docstring schema), atomically
     (``brdf.atomic_write_text``). Names default to cam000, cam001, ..."""
@@ -268,7 +260,7 @@ def load_cameras(path) -> tuple[Camera, ...]:
     ValueError naming the file, the camera and the field when one is missing or
     malformed (see ``camera_from_dict``)."""
     path = Path(path)
-    doc = _read_json(path, "camera file")
+    doc = read_json(path, "camera file")
     if isinstance(doc, Mapping):
         cams = doc.get("cameras")
         if not isinstance(cams, list) or not cams:

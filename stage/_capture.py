@@ -39,11 +39,11 @@ class Capture(eqx.Module):
     def shape(self) -> tuple[int, int, int, int]:
         return tuple(self.radiance.shape)
 
-    def astype(self, dtype) -> "Capture":
+    def astype(self, dtype) -> Capture:
         """The capture with its radiance cast to ``dtype`` (float32 or float16)."""
         return eqx.tree_at(lambda c: c.radiance, self, self.radiance.astype(dtype))
 
-    def lights(self, index) -> "Capture":
+    def lights(self, index) -> Capture:
         """The capture restricted to the lights ``index``."""
         index = jnp.asarray(index)
         return Capture(radiance=self.radiance[:, index], mask=self.mask[:, index],

@@ -55,7 +55,9 @@ def _ratio_vector(images, channel_weights=None):
     return 2.0 * g - full[..., None]
 
 
-def diffuse_normals(images: Float[Array, "*batch 4 sample channel"], channel_weights=None) -> Float[Array, "*batch sample 3"]:
+def diffuse_normals(
+    images: Float[Array, "*batch 4 sample channel"], channel_weights=None
+) -> Float[Array, "*batch sample 3"]:
     """World-space diffuse normals normalize(2 I_{x,y,z} - I_full) (Ma et al. 2007
     eq. 4) from gradient images [..., 4, P, C], channels averaged (or weighted by
     ``channel_weights`` [C]). Samples that received no light give the zero vector."""

@@ -6,9 +6,11 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from brdf import frame_from_normal_tangent
+
 from ._camera import Camera
 from ._mesh import Mesh
-from ._surface import Surface, _orthonormal_frame
+from ._surface import Surface
 from ._visibility import primary_hits
 
 # A pixel seen at grazing incidence covers an unbounded area (1 / cos); the
@@ -56,7 +58,7 @@ def image_samples(mesh: Mesh, camera: Camera, supersample: int = 1) -> Surface:
     # The interpolated normal may face away from the camera on a silhouette;
     # keep it (the camera-visibility test marks such samples unseen).
     uv = np.zeros((len(idx), 2)) if mesh.uv is None else np.sum(mesh.uv[tri] * lam[:, :, None], axis=1)
-    t, b = _orthonormal_frame(nrm, _face_dpdu(mesh)[f].copy())
+    t, b = frame_from_normal_tangent(nrm, _face_dpdu(mesh)[f].copy())
     # Footprint of one (sub)pixel on the surface, using the geometric (face) normal.
     V = mesh.vertices
     ng = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])

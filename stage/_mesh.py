@@ -61,7 +61,8 @@ def load_mesh(path, scale: float = 1.0, center: bool = False, require_uv: bool =
     if center:
         verts = verts - 0.5 * (verts.min(0) + verts.max(0))
     faces = np.asarray(loaded.faces, dtype=np.int64)
-    area2 = np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1)
+    e1, e2 = verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]
+    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     dropped = np.nonzero(~(area2 > 0))[0]
     faces = faces[area2 > 0]
     if len(faces) == 0:
@@ -112,7 +113,9 @@ class MeshReport:
     def summary(self) -> str:
         """One line per problem, naming counts and the first few indices."""
         lines = [f"{self.num_vertices} vertices, {self.num_faces} faces, uv: {'yes' if self.has_uv else 'no'}"]
-        for name in ("degenerate_faces", "repeated_index_faces", "out_of_range_faces", "nonfinite_vertices", "bad_normals"):
+        problems = ("degenerate_faces", "repeated_index_faces", "out_of_range_faces", "nonfinite_vertices",
+                    "bad_normals")
+        for name in problems:
             idx = getattr(self, name)
             if len(idx):
                 lines.append(f"{name.replace('_', ' ')}: {len(idx)} (first: {idx[:5].tolist()})")

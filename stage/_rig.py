@@ -23,6 +23,7 @@ from scipy.spatial import SphericalVoronoi
 from brdf import fibonacci_sphere as brdf_fibonacci_sphere
 from brdf import safe_normalize
 
+from ._files import read_light_table
 from ._forward import incident_light
 
 # Two lights closer than this (as directions from the centre) cannot be told
@@ -301,23 +302,6 @@ def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False
     return make_rig(dirs * radius_mm, inten, near_field=near_field)
 
 
-def _read_table(path, name: str, cols: int) -> np.ndarray:
-    from pathlib import Path
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{name} file not found: {path}")
-    try:
-        a = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {name} must be rows of {cols} numbers ({exc})") from exc
-    if a.shape[1] != cols or a.shape[0] == 0:
-        raise ValueError(f"{path}: {name} must be rows of {cols} numbers, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{path}: {name} contains NaN or Inf")
-    return a
-
-
 def directional_rig(directions_path, intensities_path=None) -> Rig:
     """A distant-light rig read from DiLiGenT-style text files (Shi et al. 2016,
     "A Benchmark Dataset and Evaluation for Non-Lambertian and Uncalibrated
@@ -331,7 +315,7 @@ def directional_rig(directions_path, intensities_path=None) -> Rig:
     disagree, a direction is not unit length (tolerance 1e-3) or two lights
     coincide.
     """
-    d = _read_table(directions_path, "light directions", 3)
+    d = read_light_table(directions_path, "light directions")
     norm = np.linalg.norm(d, axis=1)
     bad = np.nonzero(np.abs(norm - 1) > 1e-3)[0]
     if len(bad):
@@ -340,7 +324,7 @@ def directional_rig(directions_path, intensities_path=None) -> Rig:
     if intensities_path is None:
         inten = np.ones((len(d), 3))
     else:
-        inten = _read_table(intensities_path, "light intensities", 3)
+        inten = read_light_table(intensities_path, "light intensities")
         if len(inten) != len(d):
             raise ValueError(f"{intensities_path}: {len(inten)} intensity rows for {len(d)} light directions "
                              f"in {directions_path}")

@@ -26,7 +26,7 @@ import numpy as np
 
 from brdf import atomic_write_text
 
-from ._camera import _read_json
+from ._files import read_json
 from ._rig import Rig, make_rig
 
 __all__ = ["load_rig", "rig_from_dict", "rig_to_dict", "save_rig"]
@@ -101,4 +101,4 @@ def load_rig(path) -> Rig:
     """Read a rig file (``save_rig``'s, or a capture folder's ``rig.json``).
     Raises FileNotFoundError, or ValueError naming the file and the field."""
     path = Path(path)
-    return rig_from_dict(_read_json(path, "rig file"), str(path))
+    return rig_from_dict(read_json(path, "rig file"), str(path))

@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from ._capture import Capture
 
@@ -87,13 +87,13 @@ class Sensor(eqx.Module):
         float64 tests), so the arithmetic with it needs no implicit promotion."""
         return tuple(jnp.asarray(getattr(self, n), dtype) for n in names)
 
-    def mean(self, radiance: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
+    def mean(self, radiance: Float[ArrayLike, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Expected DN (before clipping and rounding): wb exposure L / gain + black_level."""
         L = jnp.asarray(radiance)
         exposure, gain, black_level = self._as(L.dtype, "exposure", "gain", "black_level")
         return self._wb(L.shape, L.dtype) * exposure * L / gain + black_level
 
-    def variance(self, radiance: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
+    def variance(self, radiance: Float[ArrayLike, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Model variance of DN (before clipping): (wb/gain)^2 (shot e + read^2) + 1/12 if quantised."""
         L = jnp.asarray(radiance)
         exposure, gain, read_noise = self._as(L.dtype, "exposure", "gain", "read_noise")
@@ -102,7 +102,7 @@ class Sensor(eqx.Module):
         q = jnp.where(self.bits > 0, 1.0 / 12.0, 0.0)
         return (self._wb(L.shape, L.dtype) / gain) ** 2 * var_e + q
 
-    def expose(self, key, radiance: Float[Array, "*batch channel"]):
+    def expose(self, key, radiance: Float[ArrayLike, "*batch channel"]):
         """Raw digital numbers and the saturation flags: (DN [*batch, C] float,
         saturated [*batch] bool, true where any channel saturates). Seeded by
         ``key`` (jax.random); deterministic when no noise is enabled."""
@@ -130,7 +130,7 @@ class Sensor(eqx.Module):
         dn = jnp.where(self.bits > 0, jnp.round(dn), dn)
         return dn, jnp.any(sat, axis=-1)
 
-    def to_radiance(self, dn: Float[Array, "*batch channel"]) -> Float[Array, "*batch channel"]:
+    def to_radiance(self, dn: Float[ArrayLike, "*batch channel"]) -> Float[Array, "*batch channel"]:
         """Invert the mean response: (DN - black_level) gain / (wb exposure), in radiance units."""
         dn = jnp.asarray(dn)
         exposure, gain, black_level = self._as(dn.dtype, "exposure", "gain", "black_level")

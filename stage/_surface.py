@@ -63,11 +63,6 @@ class Surface(eqx.Module):
                        barycentric=None if self.barycentric is None else take(self.barycentric))
 
 
-# The texel sampler's Gram-Schmidt frame now lives in brdf (bit-for-bit the same);
-# the old name stays for stage/_image.py, which imports it from here.
-_orthonormal_frame = frame_from_normal_tangent
-
-
 def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surface:
     """Rasterise the UV atlas: one sample per texel whose centre falls inside a
     UV triangle (first triangle wins where charts overlap).

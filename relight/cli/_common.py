@@ -6,6 +6,7 @@ rebuilding texel surfaces, relighting) lives in ``relight.io`` /
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -70,6 +71,41 @@ def write_settings(out: Path, command: str, args, **resolved) -> None:
     """settings.json: the command, every flag as given/defaulted, and the resolved values."""
     flags = {k: v for k, v in vars(args).items() if k not in ("func", "command")}
     write_json(Path(out) / "settings.json", {"command": f"relight {command}", "flags": flags, "resolved": resolved})
+
+
+# ------------------------------------------------------------------ the shared flags
+# Flags several commands take, spelled, typed and explained once (docs/cli.md's table); each command adds the
+# ones it uses, in its own order, with its own help text where the meaning differs.
+
+# Smallest --image-size: a 'front' camera below 8 x 8 pixels frames nothing useful.
+MIN_IMAGE_SIZE = 8
+
+
+def add_out(p: argparse.ArgumentParser, help: str, default: str | None = None) -> None:
+    """``--out``: the output folder (required unless the command has a ``default``)."""
+    p.add_argument("--out", required=default is None, default=default, help=help)
+
+
+def add_envmap(p: argparse.ArgumentParser, what: str = "lat-long environment map (.hdr/.exr/.pfm)") -> None:
+    """``--envmap``: a map file, the bundled one when absent (:func:`envmap_path`)."""
+    p.add_argument("--envmap", default=None, help=f"{what}; default: bundled")
+
+
+def add_image_size(p: argparse.ArgumentParser, default: int = 256, what: str = "pixels of the 'front' camera") -> None:
+    """``--image-size N``: N x N pixels (at least ``MIN_IMAGE_SIZE``, checked by :func:`at_least`)."""
+    p.add_argument("--image-size", type=int, default=default, help=f"{what} (default: {default})")
+
+
+def finish_parser(p: argparse.ArgumentParser, run) -> None:
+    """What every working command ends with: ``--quiet`` and the function that runs it."""
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def at_least(flag: str, value: int, minimum: int) -> None:
+    """Refuse an integer flag below ``minimum`` (a CLIError naming the flag and the value)."""
+    if value < minimum:
+        raise CLIError(f"{flag} {value}: must be at least {minimum}")
 
 
 # ------------------------------------------------------------------ rigs

@@ -10,18 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import bar, demo_material, envmap_path
+from ._common import add_envmap, add_image_size, add_out, bar, demo_material, envmap_path, finish_parser
 
 
 def add_parser(sub) -> None:
     d = sub.add_parser("demo", help="simulate, fit and relight the bundled head scan (built-in defaults)")
-    d.add_argument("--out", default="relight-demo", help="output folder (default: ./relight-demo)")
+    add_out(d, "output folder (default: ./relight-demo)", default="relight-demo")
     d.add_argument("--resolution", type=int, default=128, help="texel grid size (default: 128)")
-    d.add_argument("--envmap", default=None,
-                   help="environment map (.hdr/.exr, lat-long); default: bundled Venice Sunset")
-    d.add_argument("--image-size", type=int, default=384, help="preview image size in pixels (default: 384)")
-    d.add_argument("--quiet", action="store_true", help="no progress bars")
-    d.set_defaults(func=run)
+    add_envmap(d)
+    add_image_size(d, 384, "preview image size in pixels")
+    finish_parser(d, run)
 
 
 def run(args) -> int:

@@ -16,7 +16,18 @@ from ..fitting._driver import SOLVERS as METHODS
 from ..image._preview import texture_view
 from ..io import is_map_set, load_texel_capture, read_maps, texture_set, write_exr, write_texture_set
 from ..materials._maps import MODELS, SUBSURFACE
-from ._common import CLIError, bar, ensure_out, envmap_path, write_json, write_preview, write_settings
+from ._common import (
+    CLIError,
+    add_envmap,
+    add_out,
+    bar,
+    ensure_out,
+    envmap_path,
+    finish_parser,
+    write_json,
+    write_preview,
+    write_settings,
+)
 
 # relight.fit's rungs (subsurface is fitted afterwards by fit_subsurface) and the ladder.
 FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
@@ -28,16 +39,15 @@ def add_parser(sub) -> None:
                                    "`relight simulate`) and write the texture set, a Mitsuba 3 scene, previews, "
                                    "report.json/report.md and settings.json.")
     p.add_argument("capture", metavar="CAPTURE_DIR", help="capture folder (capture.json, rig.json, cameras.json)")
-    p.add_argument("--out", required=True, help="output folder for the map set")
+    add_out(p, "output folder for the map set")
     p.add_argument("--method", default="lm", choices=METHODS,
                    help="least-squares solver: lm (Levenberg-Marquardt, default), gn, dogleg, bfgs")
     p.add_argument("--model", default=None, choices=FIT_MODELS,
                    help="reflectance model: a rung of the ladder or auto (per-texel selection on held-out lights); "
                         "default: relight.fit's own (ggx)")
     p.add_argument("--normals", action="store_true", help="also fit the shading normal")
-    p.add_argument("--envmap", default=None, help="environment map for the Mitsuba scene (default: bundled)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    add_envmap(p, "environment map for the Mitsuba scene")
+    finish_parser(p, run)
 
 
 def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = False) -> dict:

@@ -14,11 +14,17 @@ import stage
 from ..io import write_exr
 from ..render._methods import METHODS
 from ._common import (
+    MIN_IMAGE_SIZE,
     CLIError,
+    add_envmap,
+    add_image_size,
+    add_out,
+    at_least,
     auto_exposure,
     bar,
     ensure_out,
     envmap_path,
+    finish_parser,
     parse_cameras,
     parse_rig,
     write_preview,
@@ -36,8 +42,8 @@ def add_parser(sub) -> None:
                                    "sum of its one-light images, Debevec et al. 2000); a fitted map set (from "
                                    "`relight fit`) is rendered model-based with relight.render.render_view.")
     p.add_argument("input", metavar="INPUT", help="capture folder (capture.json) or fitted map set (maps.json)")
-    p.add_argument("--envmap", default=None, help="lat-long environment map (.hdr/.exr/.pfm); default: bundled")
-    p.add_argument("--out", required=True, help="output folder")
+    add_envmap(p)
+    add_out(p, "output folder")
     p.add_argument("--method", default="rig", choices=METHODS,
                    help="rig (default: the environment through a light rig; for a capture its own OLAT images, the "
                         "only choice) | dense | fast | reference (model-based, map sets only)")
@@ -47,11 +53,10 @@ def add_parser(sub) -> None:
     p.add_argument("--camera", default=None,
                    help="front | cameras.json (default: the capture's first camera / the one the maps were "
                         "fitted from)")
-    p.add_argument("--image-size", type=int, default=256, help="pixels of the 'front' camera (default: 256)")
+    add_image_size(p)
     p.add_argument("--rotate", type=float, default=0.0, help="rotate the environment about +y by DEG degrees")
     p.add_argument("--frames", type=int, default=1, help="a turntable of N environment rotations over 360 degrees")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    finish_parser(p, run)
 
 
 def input_kind(path: Path) -> str:
@@ -77,10 +82,8 @@ def _angles(rotate: float, frames: int) -> np.ndarray:
 def run(args) -> int:
     from ..envmap import load_envmap
 
-    if args.frames < 1:
-        raise CLIError(f"--frames {args.frames}: must be at least 1")
-    if args.image_size < 8:
-        raise CLIError(f"--image-size {args.image_size}: must be at least 8")
+    at_least("--frames", args.frames, 1)
+    at_least("--image-size", args.image_size, MIN_IMAGE_SIZE)
     src = Path(args.input)
     kind = input_kind(src)
     if kind == "capture" and args.method != "rig":

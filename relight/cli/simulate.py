@@ -15,7 +15,20 @@ import stage
 from ..image._preview import dilate, texture_view
 from ..io import mesh_spec, texel_surface, write_capture, write_exr, write_maps
 from ..materials._maps import material_maps
-from ._common import CLIError, bar, demo_material, parse_cameras, parse_rig, write_preview, write_settings
+from ._common import (
+    MIN_IMAGE_SIZE,
+    CLIError,
+    add_image_size,
+    add_out,
+    at_least,
+    bar,
+    demo_material,
+    finish_parser,
+    parse_cameras,
+    parse_rig,
+    write_preview,
+    write_settings,
+)
 
 
 def add_parser(sub) -> None:
@@ -26,16 +39,15 @@ def add_parser(sub) -> None:
     p.add_argument("--rig", default="lsx", help="lsx | dome:N | rig.json (default: lsx, ICT Light Stage X)")
     p.add_argument("--resolution", type=int, default=64, help="texel grid size N (N x N; default: 64)")
     p.add_argument("--camera", default="front", help="front | cameras.json (default: front)")
-    p.add_argument("--image-size", type=int, default=256, help="pixels of the 'front' camera (default: 256)")
+    add_image_size(p)
     p.add_argument("--noise", default="none",
                    help="none | EXPOSURE: Poisson shot noise at EXPOSURE photo-electrons per unit radiance "
                         "(default: none)")
     p.add_argument("--read-noise", type=float, default=0.0, help="Gaussian read noise in electrons (with --noise)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     p.add_argument("--half", action="store_true", help="store radiance as half floats")
-    p.add_argument("--out", required=True, help="capture folder to write")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    add_out(p, "capture folder to write")
+    finish_parser(p, run)
 
 
 def _noise(spec: str, read_noise: float):
@@ -56,10 +68,8 @@ def _noise(spec: str, read_noise: float):
 
 
 def run(args) -> int:
-    if args.resolution < 2:
-        raise CLIError(f"--resolution {args.resolution}: must be at least 2")
-    if args.image_size < 8:
-        raise CLIError(f"--image-size {args.image_size}: must be at least 8")
+    at_least("--resolution", args.resolution, 2)
+    at_least("--image-size", args.image_size, MIN_IMAGE_SIZE)
     out = Path(args.out)
     sensor = _noise(args.noise, args.read_noise)
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):

@@ -130,7 +130,7 @@ def _voronoi_jit(env: EnvMap, directions: Array, supersample: int) -> Array:
 def light_weights(
     env: EnvMap,
     directions: Float[ArrayLike, "L 3"],
-    irradiance: Float[ArrayLike, "L C"],
+    irradiance: Float[ArrayLike, "L C"] | Float[ArrayLike, " L"],
     supersample: int = 1,
 ) -> Float[Array, "L C"]:
     """Per-light, per-channel weights for image-based relighting under ``env``,
@@ -247,7 +247,7 @@ def _barycentric_jit(env: EnvMap, directions: Array, faces: Array, supersample: 
 def light_weights_barycentric(
     env: EnvMap,
     directions: Float[ArrayLike, "L 3"],
-    irradiance: Float[ArrayLike, "L C"],
+    irradiance: Float[ArrayLike, "L C"] | Float[ArrayLike, " L"],
     faces: Int[ArrayLike, "F 3"] | None = None,
     supersample: int = 1,
 ) -> Float[Array, "L C"]:
@@ -268,7 +268,7 @@ def light_weights_barycentric(
 def rotation_sweep_weights(
     env: EnvMap,
     directions: Float[ArrayLike, "L 3"],
-    irradiance: Float[ArrayLike, "L C"],
+    irradiance: Float[ArrayLike, "L C"] | Float[ArrayLike, " L"],
     rotations: Float[ArrayLike, "N 3 3"],
     method: str = "voronoi",
     faces: Int[ArrayLike, "F 3"] | None = None,

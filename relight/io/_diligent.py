@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+import stage
+
 from ._errors import ImageFormatError, check_radiance
 from ._png import read_png
 
@@ -49,18 +51,80 @@ class DiligentData:
     filenames: tuple[str, ...]
 
 
-def _read_table(path: Path, what: str) -> np.ndarray:
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: {what} file not found")
-    try:
-        arr = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except ValueError as err:
-        raise ImageFormatError(f"{path}: cannot parse {what} ({err})") from None
-    if arr.shape[1] != 3:
-        raise ImageFormatError(f"{path}: {what} must have 3 columns, got shape {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ImageFormatError(f"{path}: {what} contains NaN/Inf")
-    return arr
+def _light_names(folder: Path) -> list[str]:
+    """The light images in light order: filenames.txt if present, else the numbered PNGs sorted."""
+    names_file = folder / "filenames.txt"
+    if names_file.is_file():
+        names = [ln.strip() for ln in names_file.read_text().splitlines() if ln.strip()]
+    else:
+        names = sorted(p.name for p in folder.glob("*.png") if p.stem.isdigit())
+    if not names:
+        raise ImageFormatError(f"{folder}: no light images (expected 001.png, 002.png, ... or filenames.txt)")
+    return names
+
+
+def _read_lights(folder: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(directions [L, 3], intensities [L, 3]) from the two text tables (``stage.read_light_table``), one row
+    per light image, unit directions and positive intensities."""
+    dirs_path, ints_path = folder / "light_directions.txt", folder / "light_intensities.txt"
+    dirs = stage.read_light_table(dirs_path, "light directions", error=ImageFormatError)
+    ints = stage.read_light_table(ints_path, "light intensities", error=ImageFormatError)
+    for path, arr in ((dirs_path, dirs), (ints_path, ints)):
+        if arr.shape[0] != count:
+            raise ImageFormatError(f"{path}: {arr.shape[0]} lights listed but {count} images found in {folder}")
+    norms = np.linalg.norm(dirs, axis=1)
+    if np.any(np.abs(norms - 1) > 1e-3):  # the files carry 4 decimals
+        bad = int(np.argmax(np.abs(norms - 1)))
+        raise ImageFormatError(f"{dirs_path}: line {bad + 1} is not a unit vector (length {norms[bad]:.4f})")
+    if np.any(ints <= 0):
+        raise ImageFormatError(f"{ints_path}: intensities must be positive")
+    return dirs, ints
+
+
+def _read_images(folder: Path, names: list[str], index: np.ndarray) -> np.ndarray:
+    """The light images ``index`` as float32 [L, H, W, 3], 16-bit values / 65535, all of one size."""
+    images = None
+    for k, i in enumerate(index):
+        path = folder / names[i]
+        img = read_png(path)
+        if img.dtype != np.uint16 or img.shape[-1] != 3:
+            raise ImageFormatError(f"{path}: expected a 16-bit RGB PNG, got {img.dtype} with "
+                                   f"{img.shape[-1]} channel(s)")
+        if images is None:
+            images = np.empty((len(index), *img.shape), np.float32)
+        elif img.shape != images.shape[1:]:
+            raise ImageFormatError(f"{path}: size {img.shape[:2]} differs from {images.shape[1:3]} of the first image")
+        images[k] = img.astype(np.float32) / np.float32(65535.0)
+    return images
+
+
+def _read_mask(folder: Path, size: tuple[int, int]) -> np.ndarray:
+    """mask.png's pixels equal to its maximum (all pixels without a mask file)."""
+    mask_path = folder / "mask.png"
+    if not mask_path.is_file():
+        return np.ones(size, bool)
+    m = read_png(mask_path)
+    m = m.max(axis=-1) if m.ndim == 3 else m
+    if m.shape != size:
+        raise ImageFormatError(f"{mask_path}: mask size {m.shape} differs from image size {size}")
+    return m == m.max() if m.max() > 0 else np.zeros(m.shape, bool)
+
+
+def _read_normals(folder: Path, size: tuple[int, int]) -> np.ndarray | None:
+    """Normal_gt.mat's 'Normal_gt' [H, W, 3] float32, or None without the file."""
+    gt_path = folder / "Normal_gt.mat"
+    if not gt_path.is_file():
+        return None
+    from scipy.io import loadmat
+
+    mat = loadmat(gt_path)
+    if "Normal_gt" not in mat:
+        found = sorted(k for k in mat if not k.startswith("__"))
+        raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable (found {found})")
+    normals = np.asarray(mat["Normal_gt"], np.float32)
+    if normals.shape != (*size, 3):
+        raise ImageFormatError(f"{gt_path}: Normal_gt has shape {normals.shape}, expected {(*size, 3)}")
+    return normals
 
 
 def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = None) -> DiligentData:
@@ -77,64 +141,13 @@ def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = 
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such DiLiGenT folder")
-    names_file = folder / "filenames.txt"
-    if names_file.is_file():
-        names = [ln.strip() for ln in names_file.read_text().splitlines() if ln.strip()]
-    else:
-        names = sorted(p.name for p in folder.glob("*.png") if p.stem.isdigit())
-    if not names:
-        raise ImageFormatError(f"{folder}: no light images (expected 001.png, 002.png, ... or filenames.txt)")
-    dirs = _read_table(folder / "light_directions.txt", "light directions")
-    ints = _read_table(folder / "light_intensities.txt", "light intensities")
-    for path, arr in ((folder / "light_directions.txt", dirs), (folder / "light_intensities.txt", ints)):
-        if arr.shape[0] != len(names):
-            raise ImageFormatError(
-                f"{path}: {arr.shape[0]} lights listed but {len(names)} images found in {folder}"
-            )
-    norms = np.linalg.norm(dirs, axis=1)
-    if np.any(np.abs(norms - 1) > 1e-3):  # the files carry 4 decimals
-        bad = int(np.argmax(np.abs(norms - 1)))
-        raise ImageFormatError(
-            f"{folder / 'light_directions.txt'}: line {bad + 1} is not a unit vector (length {norms[bad]:.4f})"
-        )
-    if np.any(ints <= 0):
-        raise ImageFormatError(f"{folder / 'light_intensities.txt'}: intensities must be positive")
-    index = np.arange(len(names))[lights] if lights is not None else np.arange(len(names))
-    index = np.atleast_1d(index)
-    images = None
-    for k, i in enumerate(index):
-        path = folder / names[i]
-        img = read_png(path)
-        if img.dtype != np.uint16 or img.shape[-1] != 3:
-            raise ImageFormatError(f"{path}: expected a 16-bit RGB PNG, got {img.dtype} with "
-                                   f"{img.shape[-1]} channel(s)")
-        if images is None:
-            images = np.empty((len(index), *img.shape), np.float32)
-        elif img.shape != images.shape[1:]:
-            raise ImageFormatError(f"{path}: size {img.shape[:2]} differs from {images.shape[1:3]} of the first image")
-        images[k] = img.astype(np.float32) / np.float32(65535.0)
-    mask_path = folder / "mask.png"
-    if mask_path.is_file():
-        m = read_png(mask_path)
-        m = m.max(axis=-1) if m.ndim == 3 else m
-        if m.shape != images.shape[1:3]:
-            raise ImageFormatError(f"{mask_path}: mask size {m.shape} differs from image size {images.shape[1:3]}")
-        mask = m == m.max() if m.max() > 0 else np.zeros(m.shape, bool)
-    else:
-        mask = np.ones(images.shape[1:3], bool)
-    normals = None
-    gt_path = folder / "Normal_gt.mat"
-    if gt_path.is_file():
-        from scipy.io import loadmat
-
-        mat = loadmat(gt_path)
-        if "Normal_gt" not in mat:
-            found = sorted(k for k in mat if not k.startswith("__"))
-            raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable (found {found})")
-        normals = np.asarray(mat["Normal_gt"], np.float32)
-        if normals.shape != (*images.shape[1:3], 3):
-            raise ImageFormatError(f"{gt_path}: Normal_gt has shape {normals.shape}, "
-                                   f"expected {(*images.shape[1:3], 3)}")
+    names = _light_names(folder)
+    dirs, ints = _read_lights(folder, len(names))
+    index = np.atleast_1d(np.arange(len(names))[lights] if lights is not None else np.arange(len(names)))
+    images = _read_images(folder, names, index)
+    size = images.shape[1:3]
+    mask = _read_mask(folder, size)
+    normals = _read_normals(folder, size)
     check_radiance(images, folder, "DiLiGenT images")
     return DiligentData(
         images=images,
@@ -156,8 +169,6 @@ def diligent_capture(data: DiligentData, lights=None, saturation: float = 0.995)
     the light is above the camera-facing plane and no channel is saturated
     (>= ``saturation`` of the 16-bit range)."""
     import jax.numpy as jnp
-
-    import stage
 
     idx = np.arange(len(data.filenames)) if lights is None else np.asarray(lights)
     rows, cols = np.nonzero(data.mask)

@@ -7,10 +7,10 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
-from pathlib import Path
 
 import numpy as np
 
+import stage
 from brdf import atomic_write_text
 
 from ._errors import ImageFormatError
@@ -41,12 +41,7 @@ def write_json(path: str | os.PathLike, obj, indent: int = 2) -> None:
 
 
 def read_json(path: str | os.PathLike, what: str = "JSON file"):
-    """The parsed contents of ``path``. Raises FileNotFoundError (``what`` says
-    which file was expected) or ImageFormatError (a ValueError) naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing ({what})")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ImageFormatError(f"{path}: invalid JSON ({err})") from None
+    """The parsed contents of ``path`` (``stage.read_json``, the one JSON reader).
+    Raises FileNotFoundError (``what`` says which file was expected) or
+    ImageFormatError (a ValueError) naming the file."""
+    return stage.read_json(path, what, error=ImageFormatError)

@@ -92,18 +92,6 @@ def _hammersley(n: int) -> np.ndarray:
     return np.stack([(np.arange(n) + 0.5) / n, rev.astype(np.float64) / 2.0**32], axis=1)
 
 
-def _frame(n: Array) -> tuple[Array, Array]:
-    """Any orthonormal t, b with t x b = n (Duff et al. 2017, "Building an
-    Orthonormal Basis, Revisited")."""
-    x, y, z = n[..., 0:1], n[..., 1:2], n[..., 2:3]
-    sign = jnp.where(z >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    bb = x * y * a
-    t = jnp.concatenate([1.0 + sign * x * x * a, sign * bb, -sign * x], axis=-1)
-    b = jnp.concatenate([bb, sign + y * y * a, -y], axis=-1)
-    return t, b
-
-
 @functools.partial(jax.jit, static_argnames=("rows", "n_samples"))
 def _prefilter_levels(mips: tuple[Array, ...], alphas: Array, rows: int, n_samples: int) -> Array:
     """Prefiltered maps [K, rows, 2 rows, C] for the roughnesses ``alphas`` [K]:
@@ -114,7 +102,7 @@ def _prefilter_levels(mips: tuple[Array, ...], alphas: Array, rows: int, n_sampl
     dt = mips[0].dtype
     u = jnp.asarray(_hammersley(n_samples), dt)
     r = latlong_directions(rows, 2 * rows, dt).reshape(-1, 3)
-    t, b = _frame(r)
+    t, b = brdf.orthonormal_basis(r)  # any frame about r (Duff et al. 2017): the lobe is isotropic
     h0 = mips[0].shape[0]
     omega_texel = 4.0 * jnp.pi / (2.0 * h0 * h0)
 

@@ -98,7 +98,8 @@ def test_bilinear_lookup_matches_torch_grid_sample():
     gy = (y_pix + 0.5) / 16 * 2 - 1
     grid = torch.from_numpy(np.stack([gx, gy], -1)[None, None])
     ref = torch.nn.functional.grid_sample(
-        torch.from_numpy(padded.transpose(2, 0, 1)[None]), grid, mode="bilinear", padding_mode="border", align_corners=False
+        torch.from_numpy(padded.transpose(2, 0, 1)[None]), grid, mode="bilinear", padding_mode="border",
+        align_corners=False,
     )[0, :, 0].numpy().T
     assert_close(got, ref, atol=1e-12)
 
@@ -109,7 +110,8 @@ def test_rotation_matrix_properties():
     assert_close(np.linalg.det(R), 1.0)
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
     assert_close(R @ axis, axis, atol=1e-12)
-    assert_close(rotation_matrix(jnp.array([0.0, 1.0, 0.0]), np.pi / 2) @ jnp.array([0.0, 0.0, 1.0]), [1.0, 0.0, 0.0], atol=1e-12)
+    R = rotation_matrix(jnp.array([0.0, 1.0, 0.0]), np.pi / 2)
+    assert_close(R @ jnp.array([0.0, 0.0, 1.0]), [1.0, 0.0, 0.0], atol=1e-12)
 
 
 def test_rotate_about_y_by_whole_pixels_is_a_roll():

@@ -130,7 +130,8 @@ def test_importance_sampling_tables():
     # A grey map is sampled in exact proportion: L / pdf is its integral for every sample.
     grey = np.repeat(img[..., :1], 3, axis=-1)
     _, pg, rg, _ = (np.asarray(a) for a in sample_envmap(envmap_sampler(EnvMap(jnp.asarray(grey))), u))
-    assert_close(rg[:, 0] / pg, np.full(40000, (grey[..., 0] * np.asarray(latlong_solid_angles(8, 16, jnp.float64))).sum()), rtol=1e-9)
+    integral = (grey[..., 0] * np.asarray(latlong_solid_angles(8, 16, jnp.float64))).sum()
+    assert_close(rg[:, 0] / pg, np.full(40000, integral), rtol=1e-9)
 
 
 @pytest.mark.parametrize("size", [(7, 11), (40, 24)])
@@ -141,6 +142,7 @@ def test_resize_matches_kornia(size):
     img = rng.random((20, 16, 3))
     ours = np.asarray(resize_image(jnp.asarray(img), size, antialias=False))
     ref = kornia.geometry.transform.resize(
-        torch.from_numpy(img.transpose(2, 0, 1))[None], size, interpolation="bilinear", align_corners=False, antialias=False
+        torch.from_numpy(img.transpose(2, 0, 1))[None], size, interpolation="bilinear", align_corners=False,
+        antialias=False,
     )[0].numpy().transpose(1, 2, 0)
     assert_close(ours, ref, atol=1e-12)

@@ -65,7 +65,8 @@ def test_jit_vmap_grad(stack):
     radiance, w = stack
     eager = relight_olat(radiance[0], w, chunk_samples=256)
     assert_close(jax.jit(relight_olat, static_argnums=2)(radiance[0], w, 256), eager, dtype=jnp.float32)
-    assert_close(jax.vmap(lambda r: relight_olat(r, w, 256))(radiance), relight_olat(radiance, w, 256), dtype=jnp.float32)
+    batched = jax.vmap(lambda r: relight_olat(r, w, 256))(radiance)
+    assert_close(batched, relight_olat(radiance, w, 256), dtype=jnp.float32)
     # The output is linear in the weights: d(sum out)/dw[l, c] = sum_p radiance[l, p, c].
     g = jax.grad(lambda ww: jnp.sum(relight_olat(radiance[0], ww, 256)))(jnp.asarray(w))
     assert_close(g, radiance[0].astype(np.float64).sum(1), dtype=jnp.float32, rtol=1e-5)
@@ -112,7 +113,8 @@ def test_lambertian_sphere_matches_brute_force_irradiance(shared_data):
     d = np.asarray(latlong_directions(env.height, env.width, jnp.float64)).reshape(-1, 3)
     owner = np.argmax(d @ dirs.T, axis=1)
     dist = np.linalg.norm(d - dirs[owner], axis=1)
-    LdO = np.asarray(env64.radiance).reshape(-1, 3) * np.asarray(latlong_solid_angles(env.height, env.width, jnp.float64)).reshape(-1, 1)
+    dom = np.asarray(latlong_solid_angles(env.height, env.width, jnp.float64)).reshape(-1, 1)
+    LdO = np.asarray(env64.radiance).reshape(-1, 3) * dom
     bound = (rho / np.pi) * (LdO * dist[:, None]).sum(0)
     err = np.abs(relit - truth)
     assert np.all(err <= bound + 1e-5 * truth.max())  # + float32 relighting rounding

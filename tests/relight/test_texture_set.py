@@ -104,12 +104,18 @@ def test_gutter_is_filled_from_the_charts(written, head_surface):
     assert set(np.unique(tex.model[ring])) <= set(np.unique(np.asarray(maps.model)))
 
 
-def test_missing_folder_and_files(written, tmp_path):
+@pytest.fixture
+def broken(written, tmp_path):
+    """A copy of the written map set, for the tests that damage it."""
     folder, _ = written
+    copy = tmp_path / "set"
+    shutil.copytree(folder, copy)
+    return copy
+
+
+def test_missing_folder_and_files(broken, tmp_path):
     with pytest.raises(FileNotFoundError, match="nowhere"):
         read_maps(tmp_path / "nowhere")
-    broken = tmp_path / "set"
-    shutil.copytree(folder, broken)
     (broken / "albedo.exr").unlink()
     with pytest.raises(FileNotFoundError, match="albedo.exr"):
         read_maps(broken)
@@ -118,35 +124,27 @@ def test_missing_folder_and_files(written, tmp_path):
         read_maps(broken)
 
 
-def test_corrupt_exr_names_the_file(written, tmp_path):
-    folder, _ = written
-    broken = tmp_path / "set"
-    shutil.copytree(folder, broken)
+def test_corrupt_exr_names_the_file(broken):
     data = (broken / "roughness.exr").read_bytes()
     (broken / "roughness.exr").write_bytes(data[: len(data) // 2])
     with pytest.raises(ImageFormatError, match="roughness.exr"):
         read_maps(broken)
 
 
-def test_wrong_resolution_names_the_file(written, tmp_path):
-    folder, _ = written
-    broken = tmp_path / "set"
-    shutil.copytree(folder, broken)
+def test_wrong_resolution_names_the_file(broken):
     write_exr(broken / "specular.exr", np.zeros((RES // 2, RES // 2), np.float32))
     with pytest.raises(ImageFormatError, match=r"specular.exr.*8x8.*16x16"):
         read_maps(broken)
 
 
-def test_bad_maps_json(written, tmp_path):
-    folder, _ = written
-    broken = tmp_path / "set"
-    shutil.copytree(folder, broken)
+def test_bad_maps_json(broken):
     info = json.loads((broken / "maps.json").read_text())
     (broken / "maps.json").write_text(json.dumps({**info, "format": "something-else"}))
     with pytest.raises(ImageFormatError, match="maps.json.*not a relight map set"):
         read_maps(broken)
     (broken / "maps.json").write_text("{not json")
-    with pytest.raises(ImageFormatError, match="maps.json.*invalid JSON"):
+    # The message of stage.read_json, the one JSON reader (relight.io raises it as its ImageFormatError).
+    with pytest.raises(ImageFormatError, match="maps.json.*not valid JSON"):
         read_maps(broken)
 
 

@@ -13,7 +13,8 @@ from tests.helpers import assert_close, assert_finite
 def test_srgb_known_values():
     x = jnp.array([0.0, 0.0031308, 0.18, 0.5, 1.0], jnp.float64)
     # IEC 61966-2-1: 12.92 x below the knee, 1.055 x^(1/2.4) - 0.055 above.
-    expect = np.array([0.0, 12.92 * 0.0031308, 1.055 * 0.18 ** (1 / 2.4) - 0.055, 1.055 * 0.5 ** (1 / 2.4) - 0.055, 1.0])
+    expect = np.array([0.0, 12.92 * 0.0031308, 1.055 * 0.18 ** (1 / 2.4) - 0.055, 1.055 * 0.5 ** (1 / 2.4) - 0.055,
+                       1.0])
     assert_close(srgb_encode(x), expect)
     # The two branches meet at the knee (continuity to the standard's rounding, ~1e-7).
     assert abs(1.055 * 0.0031308 ** (1 / 2.4) - 0.055 - 12.92 * 0.0031308) < 1e-7

@@ -44,4 +44,5 @@ def merge(*meshes, uv_of=0):
         normals.append(m.normals)
         uvs.append(m.uv if i == uv_of else np.full((len(m.vertices), 2), -1.0))
         off += len(m.vertices)
-    return stage.Mesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(normals), np.concatenate(uvs), "merged")
+    return stage.Mesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(normals), np.concatenate(uvs),
+                      "merged")

@@ -58,7 +58,7 @@ def test_gonioreflectometer_arcs():
     np.testing.assert_allclose(np.asarray(g.rig.solid_angle)[1:4], 2 * np.deg2rad(15), rtol=1e-5)
     # Irradiance 1 at the sample centre at normal incidence.
     np.testing.assert_allclose(np.asarray(g.rig.center_irradiance), 1.0, rtol=1e-5)
-    for cam, to in zip(g.cameras, np.asarray(g.theta_o)):
+    for cam, to in zip(g.cameras, np.asarray(g.theta_o), strict=True):
         c = np.asarray(cam.center, np.float64)
         np.testing.assert_allclose(np.linalg.norm(c), 600.0, rtol=1e-5)
         np.testing.assert_allclose(np.arccos(c[1] / 600.0), to, atol=1e-5)

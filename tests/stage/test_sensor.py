@@ -47,7 +47,8 @@ def test_noise_is_seeded(key):
 
 def _capture(radiance):
     rig = stage.geodesic_dome(0)
-    rad = jnp.broadcast_to(jnp.asarray(radiance, jnp.float32)[None, None, :, :], (1, rig.num_lights) + np.shape(radiance))
+    rad = jnp.asarray(radiance, jnp.float32)[None, None, :, :]
+    rad = jnp.broadcast_to(rad, (1, rig.num_lights) + np.shape(radiance))
     return stage.Capture(radiance=rad, mask=jnp.ones(rad.shape[:3], bool), rig=rig,
                          cameras=(stage.look_at((0.0, 0.0, 1000.0)),))
 
