@@ -81,6 +81,8 @@ from ._safe import safe_log as safe_log
 from ._safe import safe_normalize as safe_normalize
 from ._safe import safe_pow as safe_pow
 from ._safe import safe_sqrt as safe_sqrt
+from ._safe import widest_float as widest_float
+from ._safe import working_float as working_float
 from ._sampling import fibonacci_hemisphere as fibonacci_hemisphere
 from ._sampling import fibonacci_sphere as fibonacci_sphere
 from ._sampling import pdf_cosine_hemisphere as pdf_cosine_hemisphere

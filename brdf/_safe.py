@@ -36,6 +36,32 @@ def working_float(x: Array | np.dtype | type) -> np.dtype:
     return np.dtype(jnp.float32)
 
 
+def widest_float(*xs) -> np.dtype:
+    """The one floating dtype that ``xs`` (arrays, Python scalars or dtypes) are
+    computed in: the widest strongly typed floating one; weakly typed values
+    (Python scalars) and non-floating ones do not widen it; the default float
+    when none is left.
+
+    What ``jnp.result_type`` gives for floats under JAX's standard promotion,
+    chosen by width so that it also holds under
+    ``jax_numpy_dtype_promotion="strict"`` (which refuses the float32-with-
+    float64 query itself); callers then cast each operand with ``astype``.
+    """
+    strong = []
+    for x in xs:
+        if isinstance(x, (np.dtype, type, str)):
+            d, weak = np.dtype(x), False
+        elif hasattr(x, "dtype"):
+            d, weak = np.dtype(x.dtype), bool(getattr(x, "weak_type", False))
+        else:
+            continue  # a Python scalar: weakly typed
+        if not weak and jnp.issubdtype(d, jnp.floating):
+            strong.append(d)
+    if not strong:
+        return np.dtype(jnp.result_type(float))
+    return max(strong, key=lambda d: jnp.finfo(d).bits)
+
+
 def safe_sqrt(x: ArrayLike) -> Array:
     """sqrt(max(x, 0)) with a finite gradient at and below 0 (gradient 0 there)."""
     x = jnp.asarray(x)

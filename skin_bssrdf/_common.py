@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from brdf import safe_div
+from brdf import safe_div, widest_float
 
 # Range of relative index of refraction (medium / outside) the dipole family
 # accepts. Below 1 the medium is optically thinner than the outside and Jensen's
@@ -65,18 +65,8 @@ def as_float(x) -> Array:
     return x
 
 
-def float_dtype(*xs) -> np.dtype:
-    """The one floating dtype that ``xs`` (floating arrays or Python scalars) are computed in: the widest
-    strongly typed one, with Python scalars (weakly typed) not widening it; the default float if all are weak.
-
-    Chosen by width and applied with ``astype``, never by implicit promotion, so a profile built from a
-    float32 map and a float64 constant works the same under ``jax_numpy_dtype_promotion="strict"``.
-    """
-    xs = [jnp.asarray(x) for x in xs]
-    strong = [x.dtype for x in xs if jnp.issubdtype(x.dtype, jnp.floating) and not getattr(x, "weak_type", False)]
-    if not strong:
-        return jnp.dtype(jnp.result_type(float))
-    return max(strong, key=lambda d: jnp.finfo(d).bits)
+# The one dtype rule lives with the safe numerics in brdf.
+float_dtype = widest_float
 
 
 def cast_floats(tree, dtype):

@@ -26,6 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from brdf import widest_float
+
 __all__ = [
     "EnvMap",
     "direction_to_latlong",
@@ -42,14 +44,6 @@ __all__ = [
 
 def _float_dtype(dtype):
     return jnp.dtype(dtype) if dtype is not None else jnp.zeros(()).dtype
-
-
-def _widest_float(*dtypes) -> np.dtype:
-    """The widest floating dtype of ``dtypes`` (non-floating ones are ignored): what ``jnp.result_type`` gives
-    for them under JAX's standard promotion, chosen by width here because strict promotion (the tests') refuses
-    the float32-with-float64 query itself. The caller then casts each operand to it explicitly."""
-    floats = [np.dtype(d) for d in dtypes if jnp.issubdtype(d, jnp.floating)]
-    return max(floats, key=lambda d: jnp.finfo(d).bits)
 
 
 class EnvMap(eqx.Module):
@@ -223,7 +217,7 @@ def envmap_irradiance(
     normals = jnp.asarray(normals)
     batch = normals.shape[:-1]
     n = normals.reshape(-1, 3)
-    dt = _widest_float(env.radiance.dtype, n.dtype)
+    dt = widest_float(env.radiance.dtype, n.dtype)
     dirs = latlong_directions(env.height, env.width, dt).reshape(-1, 3)
     dom = latlong_solid_angles(env.height, env.width, dt)[..., None]
     weighted = (env.radiance.astype(dt) * dom).reshape(-1, env.radiance.shape[-1])

@@ -15,7 +15,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from ._latlong import EnvMap, _widest_float, direction_to_latlong, latlong_solid_angles
+from brdf import widest_float
+
+from ._latlong import EnvMap, direction_to_latlong, latlong_solid_angles
 
 __all__ = ["EnvSampler", "envmap_pdf", "envmap_sampler", "sample_envmap"]
 
@@ -49,7 +51,7 @@ def envmap_sampler(env: EnvMap) -> EnvSampler:
     """
     rad = env.radiance
     h, w, c = rad.shape
-    dt = _widest_float(rad.dtype, jnp.float32)
+    dt = widest_float(rad.dtype, jnp.float32)
     if c == 3:
         lum = rad.astype(dt) @ jnp.asarray(_LUMA, dt)
     else:

@@ -23,7 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._latlong import EnvMap, _widest_float, latlong_directions, latlong_solid_angles
+from brdf import widest_float
+
+from ._latlong import EnvMap, latlong_directions, latlong_solid_angles
 
 __all__ = [
     "sh_basis",
@@ -90,7 +92,7 @@ def sh_basis(directions: Float[ArrayLike, "*batch 3"], order: int) -> Float[Arra
 @functools.partial(jax.jit, static_argnums=1)
 def _project(radiance: Array, order: int) -> Array:
     h, w, c = radiance.shape
-    dt = _widest_float(radiance.dtype, jnp.float32)
+    dt = widest_float(radiance.dtype, jnp.float32)
     dirs = latlong_directions(h, w, dt)  # [H, W, 3]
     weighted = radiance.astype(dt) * latlong_solid_angles(h, w, dt)[..., None]  # L dOmega
 

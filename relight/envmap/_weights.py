@@ -37,7 +37,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from ._latlong import EnvMap, _widest_float, latlong_directions, latlong_solid_angles
+from brdf import widest_float
+
+from ._latlong import EnvMap, latlong_directions, latlong_solid_angles
 
 __all__ = [
     "light_weights",
@@ -105,7 +107,7 @@ def voronoi_cell_integrals(
 @functools.partial(jax.jit, static_argnums=2)
 def _voronoi_jit(env: EnvMap, directions: Array, supersample: int) -> Array:
     # jit here (not only at the caller) so eager calls reuse the compiled scan.
-    dt = _widest_float(env.radiance.dtype, directions.dtype, jnp.float32)
+    dt = widest_float(env.radiance.dtype, directions.dtype, jnp.float32)
     dirs, dom, rad = _supersampled(env, supersample, dt)
     n_lights = directions.shape[0]
     unit = directions.astype(dt)
@@ -205,7 +207,7 @@ def barycentric_cell_integrals(
 
 @functools.partial(jax.jit, static_argnums=3)
 def _barycentric_jit(env: EnvMap, directions: Array, faces: Array, supersample: int) -> Array:
-    dt = _widest_float(env.radiance.dtype, directions.dtype, jnp.float32)
+    dt = widest_float(env.radiance.dtype, directions.dtype, jnp.float32)
     unit = directions.astype(dt)
     unit = unit / jnp.linalg.norm(unit, axis=-1, keepdims=True)
     n_lights = unit.shape[0]
