@@ -37,6 +37,7 @@ from brdf import safe_normalize
 from ._camera import Camera
 from ._capture import Capture
 from ._forward import reflected_radiance_lights, subsurface_exitance, subsurface_irradiance
+from ._progress import Phase
 from ._rig import Rig
 from ._surface import Surface
 from ._visibility import PackedMask, as_mask
@@ -157,6 +158,7 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
     # Weights as arrays: traced, so captures differing only in them share a compilation.
     terms = [(m, jnp.asarray(w, jnp.float32)) for m, w in terms]
     sss_weight = jnp.asarray(sss_weight, jnp.float32)
+    bar = Phase(progress, "simulate", len(cameras) * -(-P // sample_chunk) * L)
     for v, cam in enumerate(cameras):
         _check_in_front(v, cam, surface.position)
         for ps0 in range(0, P, sample_chunk):
@@ -191,8 +193,7 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
                 out, msk = _fused_chunk(sub_terms, subsurface, sss_weight, rig_c, sub, wo_world, jnp.asarray(lv_p),
                                         cv_j)
                 yield v, slice(s, e), slice(ps0, ps1), out[: e - s, :n_s], msk[: e - s, :n_s]
-                if progress is not None:
-                    progress(e - s)
+                bar.advance(e - s)
 
 
 def _prepare(surface, rig, cameras, material, light_visibility, camera_visibility, polarization, subsurface):
@@ -260,8 +261,9 @@ def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | 
     light_visibility: bool [P, L] or a ``PackedMask`` (stage.light_visibility);
     camera_visibility: bool [V, P] (stage.camera_visibility). Returns a Capture
     whose radiance is 0 where the light is shadowed, and whose mask marks the
-    observations that are lit, seen and front-facing. ``progress(n)`` is called
-    after each light chunk. Peak memory beyond the output is one light chunk:
+    observations that are lit, seen and front-facing. ``progress(phase, done,
+    total)`` (``stage.Progress``) counts (view, light) images done, per sample
+    chunk. Peak memory beyond the output is one light chunk:
     light_chunk x P x C floats (plus the operator's chunk for subsurface).
 
     polarization: None (no filters), "parallel" or "cross" (see the module

@@ -26,10 +26,9 @@ class CLIError(Exception):
 
 class Bar:
     """A progress bar (tqdm, on stderr) that is itself the ``progress`` callback
-    of every library call, whichever of the forms it takes:
-    ``progress(phase, done, total)`` (``stage.Progress``, the project's protocol:
-    the bar follows the phase, its count and total), ``progress(n)`` (n more
-    units) or ``progress("stage name")`` (shown beside the bar)."""
+    of every library call: ``progress(phase, done, total)`` (``stage.Progress``,
+    the project's one protocol): the bar follows the phase, its count and total
+    (a phase without a total is shown by name)."""
 
     def __init__(self, total, desc, quiet, leave=False):
         self._bar = tqdm(total=total, desc=desc, unit="it", leave=leave, disable=quiet, dynamic_ncols=True)
@@ -43,19 +42,14 @@ class Bar:
     def update(self, n: int = 1) -> None:
         self._bar.update(n)
 
-    def __call__(self, *args) -> None:
-        if len(args) == 3:
-            phase, done, total = args
-            if total is not None and total != self._bar.total:
-                self._bar.reset(total=total)
-            self._bar.set_description_str(str(phase), refresh=False)
-            self._bar.update(int(done) - self._bar.n)
-        elif len(args) == 1 and isinstance(args[0], str):
-            self._bar.set_postfix_str(args[0])
-        elif len(args) == 1:
-            self._bar.update(int(args[0]))
-        else:
-            raise TypeError(f"progress: expected (phase, done, total), (n) or (message), got {args!r}")
+    def __call__(self, phase: str, done: int, total: int | None) -> None:
+        if total is None:
+            self._bar.set_postfix_str(str(phase))
+            return
+        if total != self._bar.total:
+            self._bar.reset(total=total)
+        self._bar.set_description_str(str(phase), refresh=False)
+        self._bar.update(int(done) - self._bar.n)
 
 
 def bar(total, desc, quiet, leave=False) -> Bar:

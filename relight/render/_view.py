@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import equinox as eqx
@@ -125,7 +125,7 @@ class _Renderer:
         self.s = rs._settings(method, settings)
         self.dt = self.s["dtype"]
         self.maps, self.texel_surface, self.mesh, self.env = maps, texel_surface, mesh, env
-        self.progress = progress or (lambda msg: None)
+        self.progress = lambda phase: stage.Phase(progress, phase)
         self.progress("lighting")
         self.lt = rs.prepare_lighting(env, self.s["method"].name, self.s)
         self.tex = _textures(maps, texel_surface)
@@ -181,7 +181,7 @@ class _Renderer:
 
 def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
                 *, method: str | rs.AbstractMethod = "rig", supersample: int = 2, background: bool = True, key=None,
-                progress: Callable[[str], None] | None = None, **settings) -> np.ndarray:
+                progress: stage.Progress | None = None, **settings) -> np.ndarray:
     """Render the texel-space ``maps`` (over ``texel_surface``, from
     ``stage.texel_samples(mesh, ...)``) on ``mesh`` as ``camera`` sees it under
     ``env``: an image [H, W, 3] float32 of radiance (the environment's units).
@@ -192,7 +192,7 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     :func:`relight.render.render_samples` for the methods and ``settings``)
     with shadows cast by ``mesh``, box filter down to the camera's pixels.
     ``background``: rays that miss see the (rotated) environment, else 0.
-    ``progress(stage_name)`` is called as the work advances. Visibility is
+    ``progress(phase, 0, None)`` (``stage.Progress``) is called as each phase starts. Visibility is
     per pixel sample: cost grows with (W H supersample^2) x directions for
     "rig"/"dense" and x samples for "reference".
     """
@@ -216,7 +216,7 @@ def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh
               *, frames: int = 24, mode: str = "envmap", method: str | rs.AbstractMethod = "rig",
               axis=(0.0, 1.0, 0.0),
               supersample: int = 2, background: bool = True, key=None,
-              progress: Callable[[str], None] | None = None, **settings) -> Iterator[np.ndarray]:
+              progress: stage.Progress | None = None, **settings) -> Iterator[np.ndarray]:
     """An iterator over ``frames`` images [H, W, 3] of a full turn (frame k at
     angle 2 pi k / frames about ``axis``, right-handed).
 

@@ -155,3 +155,14 @@ def test_streamed_chunks_reassemble_the_capture(scene):
         mask[v, ls, ps] = m
     np.testing.assert_allclose(rad, np.asarray(ref.radiance), rtol=1e-5, atol=1e-7)
     np.testing.assert_array_equal(mask, np.asarray(ref.mask))
+
+
+def test_progress_follows_the_one_protocol(scene):
+    """simulate reports (phase, done, total): done rises from 0 to total (views x lights)."""
+    surf, rig = scene["surf"], scene["rig"]
+    calls = []
+    stage.simulate(surf, rig, [scene["cam"]], _material(surf.num_samples), scene["lv"], scene["cv"], light_chunk=64,
+                   progress=lambda *a: calls.append(a))
+    L = rig.num_lights
+    assert calls[0] == ("simulate", 0, L) and calls[-1] == ("simulate", L, L)
+    assert all(b[1] > a[1] for a, b in zip(calls, calls[1:], strict=False))
