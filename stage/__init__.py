@@ -48,6 +48,11 @@ from ._rig import light_stage_x as light_stage_x
 from ._rig import light_stage_x_faces as light_stage_x_faces
 from ._rig import make_rig as make_rig
 from ._rig import voronoi_solid_angles as voronoi_solid_angles
+from ._rig_files import AXES as AXES
+from ._rig_files import POSITION_UNITS as POSITION_UNITS
+from ._rig_files import load_rig_file as load_rig_file
+from ._rig_files import rig_file_subsets as rig_file_subsets
+from ._rig_files import up_rotation as up_rotation
 from ._rig_io import load_rig as load_rig
 from ._rig_io import rig_from_dict as rig_from_dict
 from ._rig_io import rig_to_dict as rig_to_dict

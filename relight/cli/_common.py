@@ -105,10 +105,23 @@ def at_least(flag: str, value: int, minimum: int) -> None:
 # ------------------------------------------------------------------ rigs
 
 
-def parse_rig(spec: str) -> tuple[stage.Rig, str]:
+def add_rig_file_flags(p: argparse.ArgumentParser) -> None:
+    """``--rig-units`` / ``--rig-up``: what a rig file does not record (a .npy or
+    .txt position table: ``stage.load_rig_file``), or an override of what it does."""
+    p.add_argument("--rig-units", default=None, choices=tuple(stage.POSITION_UNITS),
+                   help="unit of the rig file's light positions (mm | cm | m | directions: distant lights); "
+                        "needed for .npy/.txt rigs")
+    p.add_argument("--rig-up", default=None, choices=(*stage.AXES, "x", "y", "z"), metavar="AXIS",
+                   help="the rig file's axis that points up, +x | -x | +y | -y | +z | -z (write a negative one as "
+                        "--rig-up=-y); turned to the stage's +y; needed for .npy/.txt rigs")
+
+
+def parse_rig(spec: str, units: str | None = None, up: str | None = None) -> tuple[stage.Rig, str]:
     """``lsx`` (ICT Light Stage X, 346 near-field lights), ``dome:N`` (N distant
     lights: a geodesic dome when N = 10 * 4^s + 2, else a Fibonacci sphere) or a
-    rig.json file (a capture folder's rig: positions/directions + intensities)."""
+    rig file: a rig.json (a capture folder's rig: positions/directions +
+    intensities), or any file ``stage.load_rig_file`` reads (.npy / .txt
+    tables, the Light Stage X table), with ``units`` / ``up`` as stated."""
     s = spec.strip()
     if s.lower() in ("lsx", "light_stage_x", "lightstage"):
         return stage.light_stage_x(), "ICT Light Stage X (346 lights, near field)"
@@ -128,7 +141,20 @@ def parse_rig(spec: str) -> tuple[stage.Rig, str]:
         raise CLIError(f"--rig {spec}: not lsx, dome:N or an existing rig file")
     if p.is_dir():
         p = p / "rig.json"
+    if units is not None or up is not None or p.suffix.lower() in (".npy", ".txt") or _is_lsx_table(p):
+        stated = ", ".join(f"{k} {v}" for k, v in (("units", units), ("up", up)) if v is not None)
+        return stage.load_rig_file(p, units=units, up=up), f"rig file {p}" + (f" ({stated})" if stated else "")
     return stage.load_rig(p), f"rig file {p}"
+
+
+def _is_lsx_table(p: Path) -> bool:
+    if p.suffix.lower() != ".json" or not p.is_file():
+        return False
+    try:
+        doc = stage.read_json(p)
+    except ValueError:
+        return False
+    return isinstance(doc, dict) and "positions_cm" in doc
 
 
 # ------------------------------------------------------------------ cameras

@@ -1,6 +1,8 @@
 """``relight render``: relight a capture folder (image-based, Debevec et al.
-2000) or a fitted map set (model-based, ``relight.render.render_view``) under
-an environment map, from a camera, optionally as a turntable of rotations."""
+2000), a camera-space photo capture (image-based, each camera's own view;
+docs/capture_layout.md) or a fitted map set (model-based,
+``relight.render.render_view``) under an environment map, from a camera,
+optionally as a turntable of rotations."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from ._common import (
     add_envmap,
     add_image_size,
     add_out,
+    add_rig_file_flags,
     at_least,
     auto_exposure,
     bar,
@@ -39,9 +42,12 @@ from ._common import (
 def add_parser(sub) -> None:
     p = sub.add_parser("render", help="relight a capture (image-based) or a fitted map set (model-based)",
                        description="Relight INPUT under --envmap: a capture folder is relit image-based (a weighted "
-                                   "sum of its one-light images, Debevec et al. 2000); a fitted map set (from "
+                                   "sum of its one-light images, Debevec et al. 2000); a photo capture "
+                                   "(docs/capture_layout.md) the same way, each camera's own view, no geometry; a "
+                                   "fitted map set (from "
                                    "`relight fit`) is rendered model-based with relight.render.render_view.")
-    p.add_argument("input", metavar="INPUT", help="capture folder (capture.json) or fitted map set (maps.json)")
+    p.add_argument("input", metavar="INPUT",
+                   help="capture folder (capture.json: texel-space or a photo capture) or fitted map set (maps.json)")
     add_envmap(p)
     add_out(p, "output folder")
     p.add_argument("--method", default="rig", choices=METHODS,
@@ -53,6 +59,7 @@ def add_parser(sub) -> None:
     p.add_argument("--camera", default=None,
                    help="front | cameras.json (default: the capture's first camera / the one the maps were "
                         "fitted from)")
+    add_rig_file_flags(p)
     add_image_size(p)
     p.add_argument("--rotate", type=float, default=0.0, help="rotate the environment about +y by DEG degrees")
     p.add_argument("--frames", type=int, default=1, help="a turntable of N environment rotations over 360 degrees")
@@ -67,7 +74,9 @@ def input_kind(path: Path) -> str:
     if not path.is_dir():
         raise CLIError(f"{path}: INPUT must be a folder (a capture or a fitted map set)")
     if (path / "capture.json").is_file():
-        return "capture"
+        from ..io import is_photo_capture
+
+        return "photos" if is_photo_capture(path) else "capture"
     if (path / "maps.json").is_file():
         if not is_map_set(path):
             raise CLIError(f"{path / 'maps.json'}: not a relight map set (format is not 'relight-maps')")
@@ -86,11 +95,16 @@ def run(args) -> int:
     at_least("--image-size", args.image_size, MIN_IMAGE_SIZE)
     src = Path(args.input)
     kind = input_kind(src)
+    if kind == "photos":
+        return _run_photos(src, args)
     if kind == "capture" and args.method != "rig":
         raise CLIError(f"--method {args.method}: a capture folder is relit image-based; only --method rig applies "
                        f"(model-based methods {', '.join(METHODS[1:])} need a fitted map set)")
     if kind == "capture" and args.rig is not None:
         raise CLIError(f"--rig {args.rig}: a capture is relit with its own rig; --rig applies to map sets")
+    if kind == "capture" and (args.rig_units or args.rig_up):
+        raise CLIError("--rig-units / --rig-up: a texel-space capture's rig.json is in mm, y up; they apply to photo "
+                       "captures and --rig files")
     if args.rig is not None and args.method != "rig":
         raise CLIError(f"--rig {args.rig}: only --method rig uses a rig")
     envmap = envmap_path(args.envmap)
@@ -157,7 +171,7 @@ def _model_based(src: Path, env, angles, args):
     rig_desc = None
     if args.method == "rig":
         if args.rig is not None:
-            settings["rig"], rig_desc = parse_rig(args.rig)
+            settings["rig"], rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
         elif recorded_rig is not None:
             settings["rig"] = recorded_rig
             rig_desc = f"the capture's rig ({src / textures.info['metadata']['rig']})"
@@ -172,3 +186,68 @@ def _model_based(src: Path, env, angles, args):
             frames.append(np.asarray(img, np.float32))
             b.update(1)
     return frames, camera, args.method + ("" if rig_desc is None else f" ({rig_desc})")
+
+
+def _run_photos(src: Path, args) -> int:
+    """Image-based relighting of a photo capture, camera by camera: each camera's
+    photographs [L, H, W, C] summed with the Debevec 2000 weights of the
+    capture's rig (``relight.envmap.rotation_sweep_weights``, Voronoi cells;
+    ``relight.render.relight_olat_sweep``), no geometry. Writes per camera
+    ``<camera>/relit.exr`` (R, G, B, A: A is the coverage) + ``relit.png``, or
+    ``relit_000.exr`` ... for a turntable."""
+    from ..envmap import load_envmap, rotation_sweep_weights
+    from ..io import read_photo_capture
+    from ..render import relight_olat_sweep
+
+    if args.method != "rig":
+        raise CLIError(f"--method {args.method}: a photo capture is relit image-based; only --method rig applies")
+    for flag, value in (("--rig", args.rig), ("--camera", args.camera)):
+        if value is not None:
+            raise CLIError(f"{flag} {value}: a photo capture is relit with its own rig, from its own cameras")
+    envmap = envmap_path(args.envmap)
+    env = load_envmap(envmap)
+    angles = _angles(args.rotate, args.frames)
+    t0 = time.perf_counter()
+    capture = read_photo_capture(src, rig_units=args.rig_units, rig_up=args.rig_up)
+    rig = capture.rig
+    weights = rotation_sweep_weights(env, rig.directions, rig.center_irradiance, _rotations(angles))  # [K, L, C]
+    # Coverage: the share of each frame's lighting (channel-mean weight) that
+    # fell on valid observations (inside the mask, below saturation).
+    w_mean = np.mean(np.asarray(weights, np.float64), axis=-1, keepdims=True)  # [K, L, 1]
+    total = np.maximum(np.sum(w_mean, axis=1), 1e-30)  # [K, 1]
+    out = ensure_out(args.out)
+    names = ["relit"] if len(angles) == 1 else [f"relit_{k:03d}" for k in range(len(angles))]
+    exposure = None
+    outputs = []
+    with bar(capture.n_views, "relight (cameras)", args.quiet) as b:
+        for view in capture.iter_views():
+            L, H, W, C = view.radiance.shape
+            inside = view.mask.reshape(1, H * W, 1)
+            if C != weights.shape[-1] and C != 1:
+                raise CLIError(f"{capture.files(0)[0]}: {C} channels, but the rig and the map have "
+                               f"{weights.shape[-1]}")
+            w = weights if C == weights.shape[-1] else w_mean.astype(np.float32)  # grey photographs: mean weight
+            relit = np.asarray(relight_olat_sweep(view.radiance.reshape(L, H * W, C), w))  # [K, P, C]
+            lost = np.asarray(relight_olat_sweep((~view.valid).reshape(L, H * W, 1).astype(np.float32),
+                                                 w_mean.astype(np.float32)))  # [K, P, 1]: weight on invalid ones
+            cover = np.clip(1.0 - lost / total[:, None, :].astype(np.float32), 0.0, 1.0)  # exactly 1 if all valid
+            cover = np.where(inside, cover, np.float32(0))
+            frames = np.where(inside, relit, np.float32(0)).reshape(-1, H, W, C)
+            if exposure is None:  # the first camera's exposure for every camera and frame, so all compare
+                exposure = auto_exposure(frames)
+            (out / view.name).mkdir(exist_ok=True)
+            channels = {1: ["Y", "A"], 3: ["R", "G", "B", "A"]}.get(C, [*(f"C{c}" for c in range(C)), "A"])
+            for name, img, cov in zip(names, frames, cover.reshape(-1, H, W, 1), strict=True):
+                write_exr(out / view.name / f"{name}.exr", np.concatenate([img, cov], axis=-1), channels=channels)
+                write_preview(out / view.name / f"{name}.png", img, exposure=exposure)
+                outputs.append(f"{view.name}/{name}.exr")
+            b.update(1)
+    seconds = time.perf_counter() - t0
+    write_settings(out, "render", args, input_kind="photos", envmap=str(envmap),
+                   method="rig (the photographs' own rig, image-based, per camera)",
+                   rig_file=str(capture.rig_file), lights=rig.num_lights, cameras=list(capture.names),
+                   rotations_deg=angles.tolist(), preview_exposure_stops=exposure, seconds=round(seconds, 3),
+                   outputs=outputs)
+    if not args.quiet:
+        print(f"wrote {out}/ ({capture.n_views} camera(s) x {len(angles)} frame(s), photo capture, method rig)")
+    return 0

@@ -1,5 +1,7 @@
-"""``relight simulate``: render a texel-space OLAT capture of a mesh with the
-demo's skin-like ground-truth material, and write it as a capture folder."""
+"""``relight simulate``: render an OLAT capture of a mesh with the demo's
+skin-like ground-truth material, and write it as a texel-space capture folder
+(``--space texel``) or as a camera-space photo capture (``--space image``: one
+image per camera and light, docs/capture_layout.md)."""
 
 from __future__ import annotations
 
@@ -13,13 +15,14 @@ import brdf
 import stage
 
 from ..image._preview import dilate, texture_view
-from ..io import mesh_spec, texel_surface, write_capture, write_exr, write_maps
+from ..io import mesh_spec, spec_mesh, texel_surface, write_capture, write_exr, write_maps, write_photo_capture
 from ..materials._maps import material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
     CLIError,
     add_image_size,
     add_out,
+    add_rig_file_flags,
     at_least,
     bar,
     demo_material,
@@ -37,6 +40,7 @@ def add_parser(sub) -> None:
                                    "mesh, in texel space, and write a capture folder that `relight fit` reads.")
     p.add_argument("--mesh", default=None, help="mesh with UVs (.obj/.ply/.glb, mm); default: the bundled head scan")
     p.add_argument("--rig", default="lsx", help="lsx | dome:N | rig.json (default: lsx, ICT Light Stage X)")
+    add_rig_file_flags(p)
     p.add_argument("--resolution", type=int, default=64, help="texel grid size N (N x N; default: 64)")
     p.add_argument("--camera", default="front", help="front | cameras.json (default: front)")
     add_image_size(p)
@@ -46,6 +50,10 @@ def add_parser(sub) -> None:
     p.add_argument("--read-noise", type=float, default=0.0, help="Gaussian read noise in electrons (with --noise)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     p.add_argument("--half", action="store_true", help="store radiance as half floats")
+    p.add_argument("--space", default="texel", choices=("texel", "image"),
+                   help="texel: a texel-space capture folder (default; what `relight fit` reads) | image: a "
+                        "camera-space photo capture, one image per camera and light (what a real stage delivers; "
+                        "`relight render` relights it)")
     add_out(p, "capture folder to write")
     finish_parser(p, run)
 
@@ -74,11 +82,13 @@ def run(args) -> int:
     sensor = _noise(args.noise, args.read_noise)
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):
         raise CLIError(f"--out {out}: exists and is not a capture folder (or an empty folder); refusing to replace it")
+    if args.space == "image":
+        return _run_image(args, out, sensor)
     times = {}
     t0 = time.perf_counter()
     spec = mesh_spec(args.mesh)
     mesh, full = texel_surface(spec, args.resolution, where=str(spec["path"]))
-    rig, rig_desc = parse_rig(args.rig)
+    rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
     cams = parse_cameras(args.camera, mesh, args.image_size)
     times["geometry_s"] = time.perf_counter() - t0
 
@@ -137,4 +147,64 @@ def run(args) -> int:
                    samples_seen=int(len(seen)), texels=[H, W], timings_s={k: round(v, 3) for k, v in times.items()})
     if not args.quiet:
         print(f"wrote {out}/ ({V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen)")
+    return 0
+
+
+def _run_image(args, out: Path, sensor) -> int:
+    """``--space image``: per camera, one sample per pixel (``stage.image_samples``),
+    visibility, ``stage.simulate`` and the images [L, H, W, C] (0 off the
+    mesh), written as a photo capture (``relight.io.write_photo_capture``) with
+    each camera's mask (the pixels that see the mesh)."""
+    from ..io import is_photo_capture
+
+    if out.exists() and any(out.iterdir()) and not is_photo_capture(out):
+        raise CLIError(f"--out {out}: exists and is not a photo capture (or an empty folder); refusing to replace it")
+    times = {}
+    t0 = time.perf_counter()
+    spec = mesh_spec(args.mesh)
+    mesh = spec_mesh(spec, str(spec["path"]))
+    rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
+    cams = parse_cameras(args.camera, mesh, args.image_size)
+    images, masks = [], []
+    key = jax.random.PRNGKey(args.seed)
+    with bar(rig.num_lights * len(cams), "simulate (lights)", args.quiet) as b:
+        for v, cam in enumerate(cams):
+            try:
+                surface = stage.image_samples(mesh, cam)
+            except ValueError as err:
+                raise CLIError(f"--camera {args.camera}: camera {v}: {err}") from None
+            light_vis = stage.light_visibility(mesh, surface, rig, chunk=1 << 18)
+            cam_vis = stage.camera_visibility(mesh, surface, [cam])
+            rho, f0, alpha = demo_material(surface)
+            capture = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), light_vis, cam_vis,
+                                     progress=b)
+            if sensor is not None:
+                capture = stage.sense(capture, sensor, jax.random.fold_in(key, v))
+            H, W = cam.height, cam.width
+            idx = np.asarray(surface.texel_index)
+            img = np.zeros((rig.num_lights, H * W, capture.radiance.shape[-1]), np.float32)
+            img[:, idx] = np.maximum(np.asarray(capture.radiance[0], np.float32), 0.0)
+            seen = np.zeros(H * W, bool)
+            seen[idx] = np.asarray(cam_vis[0], bool)
+            img[:, ~seen] = 0.0
+            images.append(img.reshape(rig.num_lights, H, W, -1))
+            masks.append(seen.reshape(H, W))
+    times["simulate_s"] = time.perf_counter() - t0
+    noise = None if sensor is None else {"model": "poisson-gaussian", "exposure": float(args.noise),
+                                         "read_noise": args.read_noise, "seed": args.seed}
+    metadata = {"space": "image", "mesh": spec, "rig": rig_desc, "noise": noise,
+                "material": "relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5)",
+                "units": {"lengths": "mm", "radiance": "relative to the rig's irradiance"},
+                "writer": "relight simulate --space image"}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    write_photo_capture(out, images, rig, cams, half=args.half, masks=masks, metadata=metadata)
+    all_on = images[0].sum(axis=0)
+    write_exr(out / "preview_all_lights.exr", all_on)
+    write_preview(out / "preview_all_lights.png", all_on)
+    times["write_s"] = time.perf_counter() - t0
+    write_settings(out, "simulate", args, mesh=spec, rig=rig_desc, lights=rig.num_lights, views=len(cams),
+                   pixels_seen=[int(m.sum()) for m in masks], timings_s={k: round(v, 3) for k, v in times.items()})
+    if not args.quiet:
+        print(f"wrote {out}/ ({len(cams)} camera(s) x {rig.num_lights} lights, photo capture)")
     return 0

@@ -1,5 +1,6 @@
 """File IO for the relighting tool: OpenEXR, Radiance HDR, PFM, PNG, capture
-folders and DiLiGenT-style multi-light data, texture sets, and texel-space
+folders and DiLiGenT-style multi-light data, camera-space photo captures
+(docs/capture_layout.md), texture sets, and texel-space
 captures and map sets back to ``stage`` objects (``load_texel_capture``,
 ``load_texel_maps``). All writes are atomic (``brdf.atomic_path``); bad input
 raises ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
@@ -32,6 +33,11 @@ from ._json import write_json as write_json
 from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
+from ._photos import PhotoCapture as PhotoCapture
+from ._photos import PhotoView as PhotoView
+from ._photos import is_photo_capture as is_photo_capture
+from ._photos import read_photo_capture as read_photo_capture
+from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
 from ._texel import TexelCapture as TexelCapture
@@ -54,12 +60,15 @@ __all__ = [
     "DiligentData",
     "ExrPart",
     "ImageFormatError",
+    "PhotoCapture",
+    "PhotoView",
     "TexelCapture",
     "TexelMaps",
     "TextureSet",
     "check_radiance",
     "exr_header",
     "is_map_set",
+    "is_photo_capture",
     "jsonable",
     "load_texel_capture",
     "load_texel_maps",
@@ -76,6 +85,7 @@ __all__ = [
     "read_json",
     "read_maps",
     "read_pfm",
+    "read_photo_capture",
     "read_png",
     "spec_mesh",
     "texel_surface",
@@ -89,6 +99,7 @@ __all__ = [
     "write_maps",
     "write_mitsuba_scene",
     "write_pfm",
+    "write_photo_capture",
     "write_png",
     "write_texture_set",
 ]

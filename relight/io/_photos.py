@@ -1,0 +1,419 @@
+"""Camera-space photo captures: what a real light stage delivers, one photograph
+per camera and light, plus the rig and the camera calibration. The layout
+(format ``relight-photos``, version 1) is docs/capture_layout.md; in short::
+
+    folder/capture.json   {"format": "relight-photos", "version": 1,
+                           "rig": "rig.json" | {"file": ..., "units": ..., "up": ..., "subset": ...},
+                           "cameras": "cameras.json",
+                           "images": "{camera}/l{light:03d}.exr",   (pattern, or per view)
+                           "encoding": "linear" | "srgb" | "gamma:G",  (PNG only; EXR is linear)
+                           "exposure": x, "gain": x, "saturation": s,  (optional defaults)
+                           "views": [{"camera": "cam000", "images": ..., "mask": ...,
+                                      "exposure": x | [L], "gain": x | [L], "saturation": s}, ...],
+                           "metadata": {...}}
+
+Radiance = decoded value / (exposure x gain); a pixel at or above the
+saturation level (in stored units, any channel) under a light is invalid under
+that light; a mask (PNG or EXR, > 0.5 of full scale inside) marks the pixels
+of the subject. Paths in these files are relative to the folder and must stay
+inside it. Pixels are read lazily, one camera at a time
+(:meth:`PhotoCapture.read_view` / :meth:`PhotoCapture.iter_views`), so a
+capture larger than memory is relit camera by camera.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+import stage
+
+from ._capture import _atomic_folder
+from ._errors import ImageFormatError, check_radiance
+from ._exr import read_exr, write_exr
+from ._json import read_json, write_json
+from ._png import read_png, write_png
+
+__all__ = ["FORMAT", "PhotoCapture", "PhotoView", "is_photo_capture", "read_photo_capture", "write_photo_capture"]
+
+FORMAT = "relight-photos"
+VERSION = 1
+_DEFAULT_IMAGES = "{camera}/l{light:03d}.exr"
+_ENCODINGS = ("linear", "srgb")
+_DISTORTION = ("k1", "k2", "p1", "p2", "k3")
+
+
+@dataclasses.dataclass(frozen=True)
+class PhotoView:
+    """One camera's photographs, in memory.
+
+    Attributes:
+        name: the camera's name (cameras.json).
+        camera: its ``stage.Camera``.
+        radiance: float32 [L, H, W, C], value / (exposure x gain), 0 where invalid.
+        valid: bool [L, H, W]: inside the mask and below saturation.
+        mask: bool [H, W] (all True without a mask file).
+    """
+
+    name: str
+    camera: stage.Camera
+    radiance: np.ndarray
+    valid: np.ndarray
+    mask: np.ndarray
+
+
+def _err(where, msg) -> ImageFormatError:
+    return ImageFormatError(f"{where}: {msg}")
+
+
+def _inside(folder: Path, rel: object, where: str) -> Path:
+    """``folder / rel``, refusing absolute paths, ``..`` and links leading out."""
+    if not isinstance(rel, str) or not rel:
+        raise _err(where, f"must be a relative path inside the capture folder, got {rel!r}")
+    pure = PurePosixPath(rel.replace("\\", "/"))
+    if pure.is_absolute() or Path(rel).is_absolute() or ".." in pure.parts or (pure.parts and ":" in pure.parts[0]):
+        raise _err(where, f"path {rel!r} leaves the capture folder (absolute paths and '..' are refused)")
+    path = folder / Path(*pure.parts)
+    try:
+        path.resolve().relative_to(folder.resolve())
+    except ValueError:
+        raise _err(where, f"path {rel!r} leads outside the capture folder (through a link)") from None
+    return path
+
+
+def _positive(value, n: int, where: str) -> np.ndarray:
+    """A scalar or [n] of positive finite numbers, as float64 [n]."""
+    try:
+        arr = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise _err(where, f"must be a positive number or a list of {n}, got {value!r}") from None
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise _err(where, f"must be a positive number or a list of {n} positive numbers (one per light), "
+                          f"got shape {arr.shape}")
+    return arr
+
+
+def _encoding(value, where: str) -> float | str:
+    """'linear', 'srgb' or a gamma exponent from 'gamma:G'."""
+    if value in _ENCODINGS:
+        return value
+    if isinstance(value, str) and value.startswith("gamma:"):
+        try:
+            g = float(value[6:])
+        except ValueError:
+            g = -1.0
+        if np.isfinite(g) and g > 0:
+            return g
+    raise _err(where, f"must be 'linear', 'srgb' or 'gamma:G' (G > 0), got {value!r}")
+
+
+def _distortion(entry: Mapping, where: str) -> dict | None:
+    d = entry.get("distortion")
+    if d is None:
+        return None
+    if isinstance(d, Mapping):
+        vals = [d.get(k, 0.0) for k in _DISTORTION]
+    else:
+        vals = list(d) if isinstance(d, (list, tuple)) else [d]
+        if len(vals) not in (4, 5):
+            raise _err(where, f"field 'distortion' must be OpenCV [k1, k2, p1, p2(, k3)], got {d!r}")
+        vals = vals + [0.0] * (5 - len(vals))
+    try:
+        arr = np.asarray(vals, np.float64)
+    except (TypeError, ValueError):
+        raise _err(where, f"field 'distortion' must be numbers, got {d!r}") from None
+    if not np.all(np.isfinite(arr)):
+        raise _err(where, "field 'distortion' must be finite")
+    return dict(zip(_DISTORTION, arr.tolist(), strict=True))
+
+
+class PhotoCapture:
+    """A photo capture folder opened lazily: the JSON files are read and checked,
+    and every image file is checked to exist; no pixels are read until asked.
+
+    Attributes:
+        folder, rig (``stage.Rig``, in the stage frame, mm), rig_file (Path),
+        names (camera names), cameras (``stage.Camera`` per view), distortion
+        (per view: OpenCV k1 k2 p1 p2 k3 or None; recorded only: image-based
+        relighting works on the photographs as they are and never undistorts),
+        n_lights, metadata.
+    """
+
+    def __init__(self, folder: str | os.PathLike, rig_units: str | None = None, rig_up: str | None = None,
+                 rig_subset: str | None = None):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise FileNotFoundError(f"{self.folder}: no such photo capture folder")
+        where = self.folder / "capture.json"
+        info = read_json(where, "a photo capture folder needs capture.json")
+        if not isinstance(info, Mapping):
+            raise _err(where, "must be a JSON object")
+        if info.get("format") != FORMAT:
+            raise _err(where, f"field 'format' must be {FORMAT!r}, got {info.get('format')!r}")
+        version = info.get("version")
+        if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= VERSION:
+            raise _err(where, f"field 'version' must be an integer 1..{VERSION}, got {version!r}")
+        self.metadata = dict(info.get("metadata", {}) or {})
+        # the rig
+        rig_spec = info.get("rig", "rig.json")
+        if isinstance(rig_spec, str):
+            rig_spec = {"file": rig_spec}
+        if not isinstance(rig_spec, Mapping) or "file" not in rig_spec:
+            raise _err(where, "field 'rig' must be a file name or {\"file\": ..., \"units\", \"up\", \"subset\"}")
+        self.rig_file = _inside(self.folder, rig_spec["file"], f"{where}: field 'rig'")
+        self.rig = stage.load_rig_file(self.rig_file, units=rig_units or rig_spec.get("units"),
+                                       up=rig_up or rig_spec.get("up"),
+                                       subset=rig_subset or rig_spec.get("subset"))
+        self.n_lights = self.rig.num_lights
+        # the cameras
+        cam_path = _inside(self.folder, info.get("cameras", "cameras.json"), f"{where}: field 'cameras'")
+        doc = read_json(cam_path, "camera file")
+        entries = doc.get("cameras") if isinstance(doc, Mapping) else doc
+        if not isinstance(entries, list) or not entries:
+            raise _err(cam_path, "field 'cameras' must be a non-empty list of cameras")
+        self.names = [str(e.get("name", f"cam{i:03d}")) if isinstance(e, Mapping) else f"cam{i:03d}"
+                      for i, e in enumerate(entries)]
+        if len(set(self.names)) != len(self.names):
+            raise _err(cam_path, f"camera names must be distinct, got {self.names}")
+        cams = [stage.camera_from_dict(e, f"{cam_path}: camera {i}") for i, e in enumerate(entries)]
+        self.distortion = [_distortion(e, f"{cam_path}: camera {i}") for i, e in enumerate(entries)]
+        # the views
+        defaults = {k: info[k] for k in ("images", "encoding", "exposure", "gain", "saturation", "mask") if k in info}
+        views = info.get("views")
+        if views is None:
+            views = [{"camera": n} for n in self.names]
+        if not isinstance(views, list) or not views:
+            raise _err(where, "field 'views' must be a non-empty list of {\"camera\": name, ...}")
+        self.cameras, self._views = [], []
+        order = []
+        for i, v in enumerate(views):
+            vw = f"{where}: views[{i}]"
+            if not isinstance(v, Mapping) or v.get("camera") not in self.names:
+                raise _err(vw, f"field 'camera' must name a camera of {cam_path.name} ({self.names})")
+            if self.names.index(v["camera"]) in order:
+                raise _err(vw, f"camera {v['camera']!r} is listed twice in 'views'")
+            order.append(self.names.index(v["camera"]))
+            self._views.append(self._parse_view({**defaults, **v}, vw, cams[order[-1]]))
+            self.cameras.append(cams[order[-1]])
+        self.names = [self.names[k] for k in order]
+        self.distortion = [self.distortion[k] for k in order]
+
+    def _parse_view(self, v: Mapping, where: str, cam: stage.Camera) -> dict:
+        L = self.n_lights
+        pattern = v.get("images", _DEFAULT_IMAGES)
+        if isinstance(pattern, list):
+            if len(pattern) != L:
+                raise _err(where, f"field 'images' lists {len(pattern)} files for {L} lights in the rig")
+            rels = pattern
+        elif isinstance(pattern, str):
+            try:
+                rels = [pattern.format(camera=v["camera"], light=l, light1=l + 1) for l in range(L)]
+            except (KeyError, IndexError, ValueError) as err:
+                raise _err(where, f"field 'images' pattern {pattern!r} is not valid (fields: camera, light, "
+                                  f"light1; {err})") from None
+        else:
+            raise _err(where, "field 'images' must be a file-name pattern or a list of one file per light")
+        files = [_inside(self.folder, r, f"{where}: field 'images'") for r in rels]
+        suffixes = {f.suffix.lower() for f in files}
+        if not suffixes <= {".exr", ".png"}:
+            raise _err(where, f"field 'images': files must be .exr or .png, got {sorted(suffixes)}")
+        missing = [str(f) for f in files if not f.is_file()]
+        if missing:
+            raise _err(where, f"{len(missing)} of {L} light images missing, first: {missing[0]}")
+        mask = v.get("mask")
+        mask = None if mask is None else _inside(self.folder, mask, f"{where}: field 'mask'")
+        if mask is not None and not mask.is_file():
+            raise _err(where, f"field 'mask': no such file {mask}")
+        sat = v.get("saturation")
+        if sat is not None and (isinstance(sat, bool) or not isinstance(sat, (int, float)) or not sat > 0):
+            raise _err(where, f"field 'saturation' must be a positive number, got {sat!r}")
+        return {"files": files, "mask": mask, "saturation": sat,
+                "encoding": _encoding(v.get("encoding", "linear"), f"{where}: field 'encoding'"),
+                "scale": 1.0 / (_positive(v.get("exposure", 1.0), L, f"{where}: field 'exposure'")
+                                * _positive(v.get("gain", 1.0), L, f"{where}: field 'gain'")),
+                "size": (cam.height, cam.width)}
+
+    @property
+    def n_views(self) -> int:
+        return len(self._views)
+
+    def files(self, view: int) -> list[Path]:
+        """The image file of each light for ``view``."""
+        return list(self._views[view]["files"])
+
+    def _read_image(self, path: Path, encoding, size, saturation) -> tuple[np.ndarray, np.ndarray]:
+        """The decoded image [H, W, C] float32, and bool [H, W]: saturated (a
+        stored value, PNG scaled to [0, 1] before decoding, at or above
+        ``saturation`` in any channel)."""
+        if path.suffix.lower() == ".exr":
+            img = read_exr(path)
+            stored = img
+        else:
+            raw = read_png(path)
+            full = 65535.0 if raw.dtype == np.uint16 else 255.0
+            img = raw.astype(np.float64) / full
+            if raw.shape[-1] in (2, 4):
+                img = img[..., :-1]  # drop alpha
+            stored = img
+            if encoding == "srgb":
+                from ..image._tonemap import srgb_decode
+
+                img = np.asarray(srgb_decode(img), np.float64)
+            elif not isinstance(encoding, str):
+                img = img**encoding
+            img = img.astype(np.float32)
+        if img.shape[:2] != size:
+            raise _err(path, f"image is {img.shape[1]}x{img.shape[0]} but its camera is {size[1]}x{size[0]} "
+                             f"(cameras.json)")
+        check_radiance(img, path, "pixel values")
+        if saturation is None:
+            return img, np.zeros(size, bool)
+        return img, np.any(stored >= saturation, axis=-1)
+
+    def read_mask(self, view: int) -> np.ndarray:
+        """bool [H, W]: the view's mask (> half of full scale in its first
+        channel), all True without one."""
+        v = self._views[view]
+        if v["mask"] is None:
+            return np.ones(v["size"], bool)
+        path = v["mask"]
+        if path.suffix.lower() == ".exr":
+            m = read_exr(path)[..., 0] > 0.5
+        elif path.suffix.lower() == ".png":
+            raw = read_png(path)
+            m = raw[..., 0].astype(np.float64) > 0.5 * (65535.0 if raw.dtype == np.uint16 else 255.0)
+        else:
+            raise _err(path, "a mask must be .png or .exr")
+        if m.shape != v["size"]:
+            raise _err(path, f"mask is {m.shape[1]}x{m.shape[0]} but its camera is {v['size'][1]}x{v['size'][0]}")
+        return m
+
+    def read_view(self, view: int, lights: Sequence[int] | None = None) -> PhotoView:
+        """One camera's photographs (or those of ``lights``) as a :class:`PhotoView`:
+        [L, H, W, C] radiance, float32, 0 where invalid."""
+        if not 0 <= view < self.n_views:
+            raise IndexError(f"{self.folder}: view {view} out of range (capture has {self.n_views})")
+        v = self._views[view]
+        ls = range(self.n_lights) if lights is None else [int(l) for l in lights]
+        mask = self.read_mask(view)
+        rad = valid = None
+        for j, l in enumerate(ls):
+            img, saturated = self._read_image(v["files"][l], v["encoding"], v["size"], v["saturation"])
+            if rad is None:
+                rad = np.empty((len(ls), *img.shape), np.float32)
+                valid = np.empty((len(ls), *img.shape[:2]), bool)
+            elif img.shape != rad.shape[1:]:
+                raise _err(v["files"][l], f"has {img.shape[-1]} channels, the view's first image "
+                                          f"{rad.shape[-1]}")
+            ok = mask & ~saturated
+            valid[j] = ok
+            rad[j] = np.where(ok[..., None], img * np.float32(v["scale"][l]), np.float32(0))
+        return PhotoView(self.names[view], self.cameras[view], rad, valid, mask)
+
+    def iter_views(self) -> Iterator[PhotoView]:
+        """Yield each camera's :class:`PhotoView` in turn (one camera in memory)."""
+        for i in range(self.n_views):
+            yield self.read_view(i)
+
+    def __len__(self) -> int:
+        return self.n_views
+
+    def __iter__(self) -> Iterator[PhotoView]:
+        return self.iter_views()
+
+
+def is_photo_capture(folder: str | os.PathLike) -> bool:
+    """Whether ``folder/capture.json`` says format ``relight-photos``."""
+    p = Path(folder) / "capture.json"
+    if not p.is_file():
+        return False
+    try:
+        info = read_json(p)
+    except ValueError:
+        return False
+    return isinstance(info, Mapping) and info.get("format") == FORMAT
+
+
+def read_photo_capture(folder: str | os.PathLike, rig_units: str | None = None, rig_up: str | None = None,
+                       rig_subset: str | None = None) -> PhotoCapture:
+    """Open a photo capture folder (docs/capture_layout.md) lazily.
+
+    ``rig_units`` / ``rig_up`` / ``rig_subset`` state (or override) the rig
+    file's units ("mm" | "cm" | "m" | "directions"), up axis ("+y", "-y", ...)
+    and named light subset (``stage.load_rig_file``); a .npy rig needs the
+    first two. Raises FileNotFoundError, or ImageFormatError / ValueError
+    naming the file and the field.
+    """
+    return PhotoCapture(folder, rig_units, rig_up, rig_subset)
+
+
+def write_photo_capture(folder: str | os.PathLike, images: Sequence[np.ndarray], rig: stage.Rig,
+                        cameras: Sequence[stage.Camera], names: Sequence[str] | None = None, fmt: str = "exr",
+                        encoding: str = "linear", half: bool = False, exposure=None, gain=None,
+                        masks: Sequence[np.ndarray | None] | None = None, saturation: float | None = None,
+                        metadata: Mapping | None = None) -> Path:
+    """Write a photo capture folder: ``images[v]`` [L, H, W, C] float, the values
+    as stored (exposure x gain x radiance), per camera; ``fmt`` "exr" (float or
+    ``half``) or "png" (16-bit, values in [0, 1], sRGB- or gamma-encoded per
+    ``encoding``). ``exposure`` / ``gain``: per view, a scalar or [L]. The
+    folder must be new, empty or an earlier photo capture; the whole folder is
+    written under a temporary name and swapped into place when complete."""
+    folder = Path(folder)
+    if folder.exists() and (not folder.is_dir() or (any(folder.iterdir()) and not is_photo_capture(folder))):
+        raise FileExistsError(f"{folder}: exists and is neither empty nor a photo capture; refusing to replace it")
+    names = [f"cam{i:03d}" for i in range(len(cameras))] if names is None else [str(n) for n in names]
+    if not (len(images) == len(cameras) == len(names)):
+        raise ValueError(f"{folder}: {len(images)} image stacks, {len(cameras)} cameras, {len(names)} names")
+    if fmt not in ("exr", "png"):
+        raise ValueError(f"{folder}: fmt must be 'exr' or 'png', got {fmt!r}")
+    enc = _encoding(encoding, "encoding")
+    if folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()  # an empty folder is replaced by the capture
+    with _atomic_folder(folder) as tmp:
+        _write_photos(tmp, images, rig, cameras, names, fmt, encoding, enc, half, exposure, gain, masks,
+                      saturation, metadata)
+    return folder
+
+
+def _write_photos(folder, images, rig, cameras, names, fmt, encoding, enc, half, exposure, gain, masks, saturation,
+                  metadata) -> None:
+    write_json(folder / "rig.json", {**stage.rig_to_dict(rig), "units": "mm"})
+    stage.save_cameras(folder / "cameras.json", cameras, names)
+    views = []
+    for v, (stack, name) in enumerate(zip(images, names, strict=True)):
+        stack = np.asarray(stack, np.float32)
+        if stack.ndim != 4 or stack.shape[0] != rig.num_lights:
+            raise ValueError(f"{folder}: images[{v}] must be [L={rig.num_lights}, H, W, C], got {stack.shape}")
+        (folder / name).mkdir(exist_ok=True)
+        entry = {"camera": name, "images": f"{name}/l{{light:03d}}.{fmt}"}
+        for l, img in enumerate(stack):
+            path = folder / name / f"l{l:03d}.{fmt}"
+            if fmt == "exr":
+                write_exr(path, img, half=half)
+            else:
+                x = np.clip(img.astype(np.float64), 0.0, 1.0)
+                if enc == "srgb":
+                    from ..image._tonemap import srgb_encode
+
+                    x = np.asarray(srgb_encode(x), np.float64)
+                elif not isinstance(enc, str):
+                    x = x ** (1.0 / enc)
+                write_png(path, np.round(x * 65535.0).astype(np.uint16))
+        if masks is not None and masks[v] is not None:
+            write_png(folder / name / "mask.png", np.where(np.asarray(masks[v], bool), 255, 0).astype(np.uint8))
+            entry["mask"] = f"{name}/mask.png"
+        for key, val in (("exposure", exposure), ("gain", gain)):
+            if val is not None:
+                entry[key] = np.asarray(val[v], np.float64).tolist()
+        views.append(entry)
+    doc = {"format": FORMAT, "version": VERSION, "rig": "rig.json", "cameras": "cameras.json",
+           "encoding": encoding if fmt == "png" else "linear", "views": views, "metadata": dict(metadata or {})}
+    if saturation is not None:
+        doc["saturation"] = float(saturation)
+    write_json(folder / "capture.json", doc)
