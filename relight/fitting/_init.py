@@ -38,7 +38,8 @@ def _quantile_masked(x, valid, q):
 
 def photometric_stereo(obs, w, wi, wo, irr, fit_normal: bool):
     """(normal [3] in the surface frame, rho_d [3]) from Lambertian least squares
-    on the selected lights. obs, w, irr [N, C]; wi, wo [N, 3]."""
+    on the selected lights. obs, w, irr [N, C]; wi, wo [N, 3]. Unit-free: it
+    uses obs / irr and ratios of sums of obs x irr and irr^2."""
     valid = w[:, 0] > 0
     shade = jnp.mean(safe_div(obs, jnp.where(irr > 0, irr, 1.0)), axis=1)  # grey radiance per unit irradiance
     h = safe_normalize(wi + wo)
@@ -94,6 +95,8 @@ def specular_start(obs, w, wi, wo, irr, normal, lay: Layout):
         y = obs - b
         dd, da, aa = jnp.sum(w * d * d, 0), jnp.sum(w * d * a, 0), jnp.sum(w * a * a)
         dy, ay = jnp.sum(w * d * y, 0), jnp.sum(w * a * y)
+        # A guard for a channel without lit observations, not a scale: the
+        # driver normalises irr to RMS 1 per sample, so dd ~ n_lit / 20.
         dd_s = jnp.maximum(dd, 1e-12)
         # Schur complement eliminating the three diagonal rho_d unknowns.
         schur = aa - jnp.sum(da * da / dd_s)

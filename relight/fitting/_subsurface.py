@@ -120,7 +120,9 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
         k = np.asarray(basis(jnp.maximum(d, 1e-4), Ej))
         num = np.sum(vm * y * k, axis=(0, 1))
         den = np.sum(vm * k * k, axis=(0, 1))
-        A_new = np.clip(num / np.maximum(den, 1e-30), 0.0, 1.0)
+        # den = 0 only where a sample has no valid observation (no absolute floor:
+        # den is in the capture's units squared, ~1e-26 for an intensity-1 rig x 1e-6).
+        A_new = np.clip(np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0), 0.0, 1.0)
         r = vm * (y - A_new[None, None] * k)
         sse_p = np.sum(r * r, axis=(0, 1))  # [P, C]
         sse = np.stack([np.bincount(labels, sse_p[:, c], minlength=R) for c in range(C)], 1)
