@@ -105,6 +105,40 @@ def at_least(flag: str, value: int, minimum: int) -> None:
 # ------------------------------------------------------------------ rigs
 
 
+def add_mesh_flags(p: argparse.ArgumentParser) -> None:
+    """``--mesh`` with its placement: ``--units`` or ``--scale``, and ``--center``."""
+    p.add_argument("--mesh", default=None,
+                   help="mesh with UVs (.obj/.ply/.glb); default: the bundled head scan (a copy of that file is "
+                        "placed the same way)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--units", default=None, choices=("mm", "cm", "m"),
+                   help="length unit of the mesh file (default: mm)")
+    g.add_argument("--scale", type=float, default=None, help="millimetres per mesh-file unit (instead of --units)")
+    p.add_argument("--center", default=None, action=argparse.BooleanOptionalAction,
+                   help="move the mesh's bounding-box centre to the rig centre (default: no, except for the head scan)")
+
+
+def mesh_from_args(args) -> dict:
+    """The mesh spec (``relight.io.mesh_spec``) of ``--mesh/--units/--scale/--center``; CLIError on bad values."""
+    from ..io import mesh_spec
+
+    try:
+        return mesh_spec(args.mesh, units=args.units, scale=args.scale, center=args.center)
+    except ValueError as exc:
+        raise CLIError(f"--mesh {args.mesh or 'head'}: {exc}") from None
+
+
+def warn_mesh_size(command: str, mesh: stage.Mesh, rig: stage.Rig) -> None:
+    """Print ``relight.io.mesh_size_warning`` on stderr, if any."""
+    import sys
+
+    from ..io import mesh_size_warning
+
+    msg = mesh_size_warning(mesh, rig)
+    if msg:
+        print(f"relight {command}: warning: {msg}", file=sys.stderr)
+
+
 def add_rig_file_flags(p: argparse.ArgumentParser) -> None:
     """``--rig-units`` / ``--rig-up``: what a rig file does not record (a .npy or
     .txt position table: ``stage.load_rig_file``), or an override of what it does."""

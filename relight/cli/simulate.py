@@ -15,20 +15,23 @@ import brdf
 import stage
 
 from ..image._preview import dilate, texture_view
-from ..io import mesh_spec, spec_mesh, texel_surface, write_capture, write_exr, write_maps, write_photo_capture
+from ..io import spec_mesh, texel_surface, write_capture, write_exr, write_maps, write_photo_capture
 from ..materials._maps import material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
     CLIError,
     add_image_size,
+    add_mesh_flags,
     add_out,
     add_rig_file_flags,
     at_least,
     bar,
     demo_material,
     finish_parser,
+    mesh_from_args,
     parse_cameras,
     parse_rig,
+    warn_mesh_size,
     write_preview,
     write_settings,
 )
@@ -38,7 +41,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("simulate", help="simulate an OLAT capture of a mesh (texel space) into a capture folder",
                        description="Simulate a one-light-at-a-time capture of the demo's skin-like material on a "
                                    "mesh, in texel space, and write a capture folder that `relight fit` reads.")
-    p.add_argument("--mesh", default=None, help="mesh with UVs (.obj/.ply/.glb, mm); default: the bundled head scan")
+    add_mesh_flags(p)
     p.add_argument("--rig", default="lsx", help="lsx | dome:N | rig.json (default: lsx, ICT Light Stage X)")
     add_rig_file_flags(p)
     p.add_argument("--resolution", type=int, default=64, help="texel grid size N (N x N; default: 64)")
@@ -86,9 +89,10 @@ def run(args) -> int:
         return _run_image(args, out, sensor)
     times = {}
     t0 = time.perf_counter()
-    spec = mesh_spec(args.mesh)
+    spec = mesh_from_args(args)
     mesh, full = texel_surface(spec, args.resolution, where=str(spec["path"]))
     rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
+    warn_mesh_size("simulate", mesh, rig)
     cams = parse_cameras(args.camera, mesh, args.image_size)
     times["geometry_s"] = time.perf_counter() - t0
 
@@ -161,9 +165,10 @@ def _run_image(args, out: Path, sensor) -> int:
         raise CLIError(f"--out {out}: exists and is not a photo capture (or an empty folder); refusing to replace it")
     times = {}
     t0 = time.perf_counter()
-    spec = mesh_spec(args.mesh)
+    spec = mesh_from_args(args)
     mesh = spec_mesh(spec, str(spec["path"]))
     rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
+    warn_mesh_size("simulate", mesh, rig)
     cams = parse_cameras(args.camera, mesh, args.image_size)
     images, masks = [], []
     key = jax.random.PRNGKey(args.seed)

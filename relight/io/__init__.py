@@ -44,6 +44,8 @@ from ._texel import TexelCapture as TexelCapture
 from ._texel import TexelMaps as TexelMaps
 from ._texel import load_texel_capture as load_texel_capture
 from ._texel import load_texel_maps as load_texel_maps
+from ._texel import MESH_UNITS as MESH_UNITS
+from ._texel import mesh_size_warning as mesh_size_warning
 from ._texel import mesh_spec as mesh_spec
 from ._texel import spec_mesh as spec_mesh
 from ._texel import texel_surface as texel_surface
@@ -72,6 +74,8 @@ __all__ = [
     "jsonable",
     "load_texel_capture",
     "load_texel_maps",
+    "MESH_UNITS",
+    "mesh_size_warning",
     "mesh_spec",
     "open_capture",
     "read_capture",

@@ -7,11 +7,12 @@ Both record how to rebuild their texel surface (``mesh_spec``): the capture in
 ``relight simulate`` writes), the map set in ``maps.json``'s ``surface``. A
 spec is ``{"bundled": "head" | None, "path", "scale", "center", "resolution"}``:
 the bundled head (``stage.load_head``: scaled to mm and centred) or a mesh file
-(mm, as is, with UVs).
+with the scale (mm per file unit) and centring it is placed with.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -27,20 +28,77 @@ from ._capture import open_capture
 from ._errors import ImageFormatError
 from ._texture_set import TextureSet, read_maps
 
-__all__ = ["TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_spec", "spec_mesh",
-           "texel_surface"]
+__all__ = ["TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_size_warning", "mesh_spec",
+           "spec_mesh", "texel_surface", "MESH_UNITS"]
 
 
-def mesh_spec(path: str | os.PathLike | None = None) -> dict:
-    """How to load a mesh again: ``None``, ``"head"`` or ``"bundled"`` for the
-    bundled head (scaled to mm, centred), else a mesh file (mm, as is; the path
-    is made absolute). FileNotFoundError naming a missing file."""
+# Length units a mesh file may be in, as millimetres per unit.
+MESH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+# A mesh whose bounding-box diagonal is outside this fraction of the rig's
+# radius is implausible: a face fills 10-40% of a light stage; below 5% it is
+# almost surely in other units, above 150% it does not fit inside the lights.
+_PLAUSIBLE_EXTENT = (0.05, 1.5)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.stat().st_size != b.stat().st_size:
+            return False
+        return hashlib.sha256(a.read_bytes()).digest() == hashlib.sha256(b.read_bytes()).digest()
+    except OSError:
+        return False
+
+
+def mesh_spec(path: str | os.PathLike | None = None, *, units: str | None = None, scale: float | None = None,
+              center: bool | None = None) -> dict:
+    """How to load a mesh again, and how to place it in the stage frame (mm).
+
+    ``path``: ``None``, ``"head"`` or ``"bundled"`` for the bundled head, else
+    a mesh file (made absolute). ``units`` ("mm", "cm", "m": the file's length
+    unit) or ``scale`` (mm per file unit; not both) and ``center`` (move the
+    bounding-box centre to the rig centre) say how to place it. Defaults: a
+    file in mm, as is; the bundled head scan, and a byte-identical copy of it
+    given as a file, get the scan's own placement (x ``stage.HEAD_SCALE_MM``,
+    centred), so the same file gives the same mesh however it is named.
+    FileNotFoundError naming a missing file; ValueError naming a bad argument."""
+    if units is not None and scale is not None:
+        raise ValueError(f"mesh: give units ({units!r}) or scale ({scale!r}), not both")
+    if units is not None and units not in MESH_UNITS:
+        raise ValueError(f"mesh: units must be one of {sorted(MESH_UNITS)}, got {units!r}")
+    if scale is not None and not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"mesh: scale must be a positive finite number (mm per file unit), got {scale!r}")
+    head = stage.head_mesh_path()
     if path is None or str(path) in ("head", "bundled"):
-        return {"bundled": "head", "path": str(stage.head_mesh_path()), "scale": stage.HEAD_SCALE_MM, "center": True}
-    p = Path(path).resolve()
-    if not p.is_file():
-        raise FileNotFoundError(f"{path}: mesh file not found")
-    return {"bundled": None, "path": str(p), "scale": 1.0, "center": False}
+        p, known = head, True
+    else:
+        p = Path(path).resolve()
+        if not p.is_file():
+            raise FileNotFoundError(f"{path}: mesh file not found")
+        known = _same_file(p, head)
+    placed = units is not None or scale is not None or center is not None
+    mm = MESH_UNITS[units] if units is not None else scale
+    if known:
+        spec = {"bundled": "head" if p == head and not placed else None, "path": str(p),
+                "scale": float(stage.HEAD_SCALE_MM if mm is None else mm), "center": True if center is None else center}
+    else:
+        spec = {"bundled": None, "path": str(p), "scale": float(1.0 if mm is None else mm), "center": bool(center)}
+    return spec
+
+
+def mesh_size_warning(mesh: stage.Mesh, rig: stage.Rig) -> str | None:
+    """A one-line warning when ``mesh`` (mm) is implausibly small or large for
+    ``rig`` (its bounding-box diagonal against the rig's median light distance,
+    near-field rigs only), naming the sizes and the flags that fix it; else None."""
+    if not rig.near_field:
+        return None
+    v = np.asarray(mesh.vertices, np.float64)
+    extent = float(np.linalg.norm(v.max(0) - v.min(0)))
+    radius = float(np.median(np.linalg.norm(np.asarray(rig.position, np.float64), axis=1)))
+    lo, hi = _PLAUSIBLE_EXTENT
+    if lo * radius <= extent <= hi * radius:
+        return None
+    return (f"mesh '{mesh.name}' is {extent:.3g} mm across but the rig's lights are {radius:.4g} mm away: "
+            "if the mesh is not in mm, say its units (--units mm|cm|m or --scale MM_PER_UNIT)")
 
 
 def spec_mesh(spec: Mapping, where: str = "") -> stage.Mesh:

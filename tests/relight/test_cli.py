@@ -17,6 +17,17 @@ def test_unknown_flag_exits_nonzero():
     assert exc.value.code == 2
 
 
+def test_mesh_units_and_scale_are_exclusive(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--out", str(tmp_path / "o"), "--units", "cm", "--scale", "2"])
+    assert e.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+
+
+def test_bad_mesh_scale_names_the_flag(tmp_path, capsys):
+    assert main(["simulate", "--out", str(tmp_path / "o"), "--scale", "-1", "--quiet"]) == 1
+    assert "--mesh head: mesh: scale must be a positive" in capsys.readouterr().err
+
+
 def test_missing_envmap_names_the_file(tmp_path, capsys):
     missing = tmp_path / "nowhere.hdr"
     code = main(["demo", "--out", str(tmp_path / "o"), "--envmap", str(missing), "--resolution", "16",

@@ -187,3 +187,38 @@ def test_map_sets_load_with_their_surface_cameras_and_rig(tmp_path, head_surface
     assert loaded.mesh.faces.shape == mesh.faces.shape
     textures, _ = read_maps(folder)
     assert loaded.textures.resolution == textures.resolution
+
+
+def test_mesh_units_and_placement(tmp_path):
+    """The bundled head and a byte-identical copy of its file are placed alike
+    (the scan's own scale and centring); --units / --scale set mm per file unit."""
+    import shutil
+
+    from relight.io import MESH_UNITS, mesh_size_warning, spec_mesh
+
+    copy = tmp_path / "my_head.glb"
+    shutil.copyfile(stage.head_mesh_path(), copy)
+    bundled, mine = spec_mesh(mesh_spec(None)), spec_mesh(mesh_spec(copy))
+    np.testing.assert_array_equal(bundled.vertices, mine.vertices)
+    as_is = spec_mesh(mesh_spec(copy, scale=1.0, center=False))
+    extent = np.ptp(as_is.vertices, axis=0)
+    np.testing.assert_allclose(np.ptp(bundled.vertices, axis=0), stage.HEAD_SCALE_MM * extent, rtol=1e-5)
+    assert MESH_UNITS == {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+    assert mesh_spec(copy, units="cm")["scale"] == 10.0 and mesh_spec(copy, units="m")["scale"] == 1000.0
+    # An implausible size for the rig is named, with the flag that fixes it; the placed head is plausible.
+    rig = stage.light_stage_x()
+    msg = mesh_size_warning(as_is, rig)
+    assert msg is not None and "--units" in msg and "mm across" in msg
+    assert mesh_size_warning(bundled, rig) is None
+    assert mesh_size_warning(as_is, stage.geodesic_dome(1)) is None  # distant lights: no radius to compare with
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"units": "cm", "scale": 2.0}, "not both"),
+    ({"units": "inch"}, "units must be one of"),
+    ({"scale": 0.0}, "positive finite"),
+    ({"scale": float("nan")}, "positive finite"),
+])
+def test_mesh_placement_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mesh_spec(None, **kwargs)
