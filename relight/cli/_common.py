@@ -105,11 +105,10 @@ def at_least(flag: str, value: int, minimum: int) -> None:
 # ------------------------------------------------------------------ rigs
 
 
-def add_mesh_flags(p: argparse.ArgumentParser) -> None:
+def add_mesh_flags(p: argparse.ArgumentParser,
+                   what: str = "mesh with UVs (.obj/.ply/.glb); default: the bundled head scan") -> None:
     """``--mesh`` with its placement: ``--units`` or ``--scale``, and ``--center``."""
-    p.add_argument("--mesh", default=None,
-                   help="mesh with UVs (.obj/.ply/.glb); default: the bundled head scan (a copy of that file is "
-                        "placed the same way)")
+    p.add_argument("--mesh", default=None, help=f"{what} (a copy of the head scan's file is placed like it)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--units", default=None, choices=("mm", "cm", "m"),
                    help="length unit of the mesh file (default: mm)")

@@ -1,5 +1,7 @@
-"""``relight fit``: fit per-texel reflectance to a texel-space capture folder
-and write the texture set, a Mitsuba 3 scene, previews and a report."""
+"""``relight fit``: fit per-texel reflectance to a texel-space capture folder,
+or to a camera-space photo capture (docs/capture_layout.md) resampled onto a
+mesh's texel grid (``relight.io.photos_to_texels``), and write the texture set,
+a Mitsuba 3 scene, previews and a report."""
 
 from __future__ import annotations
 
@@ -14,16 +16,32 @@ from brdf import atomic_write_text
 
 from ..fitting._driver import SOLVERS as METHODS
 from ..image._preview import texture_view
-from ..io import is_map_set, load_texel_capture, read_maps, texture_set, write_exr, write_texture_set
+from ..io import (
+    is_map_set,
+    is_photo_capture,
+    load_texel_capture,
+    photos_to_texels,
+    read_maps,
+    read_photo_capture,
+    spec_mesh,
+    texture_set,
+    write_exr,
+    write_texture_set,
+)
 from ..materials._maps import MODELS, SUBSURFACE
 from ._common import (
     CLIError,
     add_envmap,
+    add_mesh_flags,
     add_out,
+    add_rig_file_flags,
+    at_least,
     bar,
     ensure_out,
     envmap_path,
     finish_parser,
+    mesh_from_args,
+    warn_mesh_size,
     write_json,
     write_preview,
     write_settings,
@@ -36,9 +54,21 @@ FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
 def add_parser(sub) -> None:
     p = sub.add_parser("fit", help="fit reflectance maps to a capture folder; write a texture set + Mitsuba scene",
                        description="Fit the per-texel reflectance model to a texel-space capture folder (from "
-                                   "`relight simulate`) and write the texture set, a Mitsuba 3 scene, previews, "
-                                   "report.json/report.md and settings.json.")
-    p.add_argument("capture", metavar="CAPTURE_DIR", help="capture folder (capture.json, rig.json, cameras.json)")
+                                   "`relight simulate`), or to a camera-space photo capture (with --mesh: the "
+                                   "photographs are resampled onto the mesh's texel grid), and write the texture "
+                                   "set, a Mitsuba 3 scene, previews, report.json/report.md and settings.json.")
+    p.add_argument("capture", metavar="CAPTURE_DIR",
+                   help="capture folder (capture.json, rig.json, cameras.json): texel-space or photos")
+    add_mesh_flags(p, "photo captures (required; a texel capture records its own): the subject's mesh with UVs, "
+                      "in the cameras' frame, or 'head' for the bundled head")
+    p.add_argument("--resolution", type=int, default=256, help="photo captures: texel grid N x N (default 256)")
+    p.add_argument("--grazing-deg", type=float, default=80.0,
+                   help="photo captures: drop views more than this far from a texel's normal (default 80)")
+    p.add_argument("--min-views", type=int, default=1,
+                   help="photo captures: texels seen by fewer cameras count as unseen (default 1)")
+    add_rig_file_flags(p)
+    p.add_argument("--subsample", type=int, default=1,
+                   help="DiLiGenT folders: fit every k-th pixel in x and y (quick looks; default 1: all)")
     add_out(p, "output folder for the map set")
     p.add_argument("--method", default="lm", choices=METHODS,
                    help="least-squares solver: lm (Levenberg-Marquardt, default), gn, dogleg, bfgs")
@@ -84,9 +114,20 @@ def run(args) -> int:
     times = {}
     t0 = time.perf_counter()
     capture_dir = Path(args.capture)
-    with bar(None, "read capture (images)", args.quiet) as b:
-        capture, surface, mesh, metadata = load_texel_capture(capture_dir, progress=b)
-    info = metadata["surface"]
+    if is_diligent_folder(capture_dir):
+        return _run_diligent(args, capture_dir, kwargs)
+    if args.subsample != 1:
+        raise CLIError("--subsample applies to DiLiGenT folders only")
+    photos = is_photo_capture(capture_dir)
+    coverage = None
+    if photos:
+        capture, surface, mesh, info, coverage = _ingest_photos(args, capture_dir)
+    else:
+        _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig "
+                                  "(they apply to photo captures)")
+        with bar(None, "read capture (images)", args.quiet) as b:
+            capture, surface, mesh, metadata = load_texel_capture(capture_dir, progress=b)
+        info = metadata["surface"]
     times["read_s"] = time.perf_counter() - t0
     out = ensure_out(args.out)
 
@@ -118,18 +159,147 @@ def run(args) -> int:
     for name, img in views.items():
         write_exr(out / f"{name}_view.exr", img)
         write_preview(out / f"{name}_view.png", img, exposure=0.0, curve="none")
+    if coverage is not None:
+        _write_coverage(out, surface, coverage)
     times["write_s"] = time.perf_counter() - t0
 
     report = _report(fitted, surface, Path(args.capture), times)
+    if coverage is not None:
+        report["photos"] = coverage.to_dict()
     write_json(out / "report.json", report)
     atomic_write_text(out / "report.md", _report_md(report))
     write_settings(out, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
                    fit_options=kwargs, mesh=info, samples=surface.num_samples,
+                   input="photos" if photos else "texel",
                    mitsuba_scene=None if scene is None else str(scene))
     if not args.quiet:
         print(f"wrote {out}/ (texture set, scene.xml, report.md); {report['samples']} texels, "
               f"{100 * report['failed_fraction']:.1f}% flagged")
     return 0
+
+
+def is_diligent_folder(folder: Path) -> bool:
+    """A DiLiGenT-layout object folder (relight.io.read_diligent): light_directions.txt,
+    light_intensities.txt and mask.png, and no capture.json."""
+    return (folder.is_dir() and not (folder / "capture.json").exists()
+            and all((folder / f).is_file() for f in ("light_directions.txt", "light_intensities.txt", "mask.png")))
+
+
+def _angular_error_deg(n: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    return np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
+
+
+def _run_diligent(args, folder: Path, kwargs: dict) -> int:
+    """``relight fit DILIGENT_DIR``: per pixel, the model (default Blinn-Phong, as
+    scripts/eval_diligent.py) and the shading normal, in the benchmark's camera
+    frame; writes normals.exr/.png, albedo.exr/.png, report.json/.md (the mean
+    and median angular error against Normal_gt.mat when present, with the
+    Lambertian least-squares baseline's) and settings.json."""
+    import dataclasses
+
+    import relight
+
+    from ..io import diligent_capture, read_diligent, write_png
+
+    _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
+    at_least("--subsample", args.subsample, 1)
+    times = {}
+    t0 = time.perf_counter()
+    d = read_diligent(folder)
+    if args.subsample > 1:
+        keep = np.zeros_like(d.mask)
+        keep[::args.subsample, ::args.subsample] = True
+        d = dataclasses.replace(d, mask=d.mask & keep)
+    capture, surface = diligent_capture(d)
+    times["read_s"] = time.perf_counter() - t0
+    out = ensure_out(args.out)
+    kwargs = {"model": "blinn_phong", **kwargs, "normals": True}
+    t0 = time.perf_counter()
+    with bar(surface.num_samples, "fit (pixels)", args.quiet) as b:
+        fitted = relight.fit(capture, surface, progress=b, **kwargs)
+    times["fit_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    n = np.asarray(fitted.normal, np.float64)
+    normals = surface.to_texture(n.astype(np.float32))
+    write_exr(out / "normals.exr", normals)
+    rgb = np.where(d.mask[..., None], np.round(255 * np.clip(0.5 + 0.5 * normals, 0, 1)), 0).astype(np.uint8)
+    write_png(out / "normals.png", rgb)
+    albedo = surface.to_texture(np.asarray(fitted.rho_d, np.float32))
+    write_exr(out / "albedo.exr", albedo)
+    write_preview(out / "albedo.png", albedo, exposure=0.0, curve="none")
+    times["write_s"] = time.perf_counter() - t0
+    report = _report(fitted, surface, folder, times)
+    report["diligent"] = {"object": folder.name, "pixels": int(surface.num_samples), "lights": int(len(d.filenames)),
+                          "subsample": int(args.subsample)}
+    if d.normals_gt is not None:
+        gt = d.normals_gt[d.mask].astype(np.float64)
+        err = _angular_error_deg(n, gt)
+        # The benchmark's baseline: grey Lambertian least squares on every light.
+        img = d.images / d.light_intensities[:, None, None, :]
+        grey = np.minimum(0.2989 * img[..., 0] + 0.5870 * img[..., 1] + 0.1140 * img[..., 2], 1.0)
+        b_ls = np.linalg.lstsq(d.light_directions.astype(np.float64), grey[:, d.mask], rcond=None)[0].T
+        base = _angular_error_deg(b_ls, gt)
+        report["diligent"]["normal_error_deg"] = {
+            "mean": float(err.mean()), "median": float(np.median(err)), "p95": float(np.percentile(err, 95)),
+            "lambert_ls_baseline_mean": float(base.mean()), "lambert_ls_baseline_median": float(np.median(base))}
+    write_json(out / "report.json", report)
+    atomic_write_text(out / "report.md", _report_md(report))
+    write_settings(out, "fit", args, capture=str(folder.resolve()), input="diligent", fit_options=kwargs,
+                   samples=surface.num_samples)
+    if not args.quiet:
+        e = report["diligent"].get("normal_error_deg")
+        tail = "" if e is None else f"; mean normal error {e['mean']:.2f} deg"
+        print(f"wrote {out}/ (normals, albedo, report.md); {surface.num_samples} pixels{tail}")
+    return 0
+
+
+def _refuse_photo_flags(args, why: str) -> None:
+    """CLIError when a flag that only photo captures take was given."""
+    given = [f for f, v in (("--mesh", args.mesh), ("--units", args.units), ("--scale", args.scale),
+                            ("--center", args.center), ("--rig-units", args.rig_units), ("--rig-up", args.rig_up))
+             if v is not None]
+    if given:
+        raise CLIError(f"{' / '.join(given)}: {why}")
+
+
+def _ingest_photos(args, capture_dir: Path):
+    """A photo capture resampled onto ``--mesh``'s texel grid: (capture, surface,
+    mesh, mesh spec, PhotoTexelReport)."""
+    if args.mesh is None:
+        raise CLIError(f"{capture_dir} is a photo capture (camera space): --mesh MESH is needed to resample it onto "
+                       "a texel grid (a mesh with UVs in the cameras' frame, mm; 'head' for the bundled head)")
+    at_least("--resolution", args.resolution, 1)
+    at_least("--min-views", args.min_views, 1)
+    if not 0 < args.grazing_deg <= 90:
+        raise CLIError(f"--grazing-deg must be in (0, 90], got {args.grazing_deg}")
+    try:
+        info = mesh_from_args(args)
+    except FileNotFoundError as err:
+        raise CLIError(f"--mesh: {err}") from None
+    mesh = spec_mesh(info, "--mesh")
+    photos = read_photo_capture(capture_dir, rig_units=args.rig_units, rig_up=args.rig_up)
+    warn_mesh_size("fit", mesh, photos.rig)
+    with bar(photos.n_views, "photos to texels (cameras)", args.quiet) as b:
+        capture, surface, coverage = photos_to_texels(photos, mesh, args.resolution, grazing_deg=args.grazing_deg,
+                                                      min_views=args.min_views, progress=b)
+    return capture, surface, mesh, info, coverage
+
+
+def _write_coverage(out: Path, surface, coverage) -> None:
+    """coverage.png: the texel grid, black off the atlas, red where no camera sees
+    a texel (its maps are the fit's flagged defaults), grey levels by the number
+    of cameras that see it."""
+    from ..io import write_png
+
+    cov = np.asarray(coverage.coverage)
+    n = max(int(cov.max()), 1)
+    img = np.zeros(cov.shape + (3,), np.uint8)
+    seen = cov > 0
+    level = np.round(64 + 191 * (cov.clip(0, None) / n)).astype(np.uint8)
+    img[seen] = level[seen, None]
+    img[cov == 0] = (255, 0, 0)
+    write_png(out / "coverage.png", img)
 
 
 def _report(fitted, surface, capture_dir: Path, times) -> dict:
@@ -176,6 +346,24 @@ def _report_md(r: dict) -> str:
                   f"{a['diffuse_albedo_rel_error_p95']:.2e} |",
                   f"| roughness relative error | {a['roughness_rel_error_median']:.2e} | "
                   f"{a['roughness_rel_error_p95']:.2e} |", ""]
+    if "photos" in r:
+        ph = r["photos"]
+        lines += [f"Photo capture resampled onto the texel grid ({ph['sampling']}; views beyond "
+                  f"{ph['grazing_deg']:g} degrees, outside a mask, occluded or saturated dropped): "
+                  f"**{ph['unseen']} of {ph['texels']} texels ({100 * ph['unseen_fraction']:.1f}%) unseen** "
+                  f"(seen by fewer than {ph['min_views']} camera(s); flagged, red in coverage.png).", "",
+                  "| camera | texels seen | valid observations |", "| --- | --- | --- |",
+                  *[f"| {v['camera']} | {v['seen']} | {100 * v['valid_fraction']:.1f}% |" for v in ph["views"]], ""]
+    if "diligent" in r:
+        dg = r["diligent"]
+        lines += [f"DiLiGenT object {dg['object']}: {dg['pixels']} pixels (every {dg['subsample']}-th in x and y), "
+                  f"{dg['lights']} lights; shading normals fitted (normals.png: 0.5 + 0.5 n, camera frame).", ""]
+        if "normal_error_deg" in dg:
+            e = dg["normal_error_deg"]
+            lines += ["| angular error vs Normal_gt (deg) | mean | median |", "| --- | --- | --- |",
+                      f"| relight fit | {e['mean']:.2f} | {e['median']:.2f} |",
+                      f"| Lambertian least squares (baseline) | {e['lambert_ls_baseline_mean']:.2f} | "
+                      f"{e['lambert_ls_baseline_median']:.2f} |", ""]
     if "model_counts" in r:
         lines += ["Texels per model: " + ", ".join(f"{k} {v}" for k, v in r["model_counts"].items() if v) + ".", ""]
     lines += ["| stage | seconds |", "| --- | --- |",

@@ -33,6 +33,8 @@ from ._json import write_json as write_json
 from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
+from ._photo_texels import PhotoTexelReport as PhotoTexelReport
+from ._photo_texels import photos_to_texels as photos_to_texels
 from ._photos import PhotoCapture as PhotoCapture
 from ._photos import PhotoView as PhotoView
 from ._photos import is_photo_capture as is_photo_capture
@@ -40,11 +42,11 @@ from ._photos import read_photo_capture as read_photo_capture
 from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
+from ._texel import MESH_UNITS as MESH_UNITS
 from ._texel import TexelCapture as TexelCapture
 from ._texel import TexelMaps as TexelMaps
 from ._texel import load_texel_capture as load_texel_capture
 from ._texel import load_texel_maps as load_texel_maps
-from ._texel import MESH_UNITS as MESH_UNITS
 from ._texel import mesh_size_warning as mesh_size_warning
 from ._texel import mesh_spec as mesh_spec
 from ._texel import spec_mesh as spec_mesh
@@ -63,6 +65,7 @@ __all__ = [
     "ExrPart",
     "ImageFormatError",
     "PhotoCapture",
+    "PhotoTexelReport",
     "PhotoView",
     "TexelCapture",
     "TexelMaps",
@@ -78,6 +81,7 @@ __all__ = [
     "mesh_size_warning",
     "mesh_spec",
     "open_capture",
+    "photos_to_texels",
     "read_capture",
     "diligent_capture",
     "read_diligent",
