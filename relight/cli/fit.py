@@ -304,12 +304,15 @@ def _write_coverage(out: Path, surface, coverage) -> None:
 
 def _report(fitted, surface, capture_dir: Path, times) -> dict:
     failed = np.asarray(fitted.failed)
+    observed = np.asarray(fitted.observed)
     r = {
         "samples": int(surface.num_samples),
         "failed_fraction": float(np.mean(failed)),
         "residual_rms_median": float(np.median(np.asarray(fitted.residual)[~failed])) if (~failed).any() else None,
-        "steps_median": float(np.median(np.asarray(fitted.steps))),
-        "observed_median": float(np.median(np.asarray(fitted.observed))),
+        # Over the samples with observations: a photo capture's unseen texels would otherwise decide them.
+        "observed_samples": int(np.sum(observed > 0)),
+        "steps_median": float(np.median(np.asarray(fitted.steps)[observed > 0])) if np.any(observed > 0) else 0.0,
+        "observed_median": float(np.median(observed[observed > 0])) if np.any(observed > 0) else 0.0,
         "timings_s": {k: round(v, 3) for k, v in times.items()},
     }
     if getattr(fitted, "model", None) is not None:
@@ -337,8 +340,9 @@ def _report(fitted, surface, capture_dir: Path, times) -> dict:
 def _report_md(r: dict) -> str:
     lines = ["# relight fit report", "",
              f"{r['samples']} texels fitted; {100 * r['failed_fraction']:.2f}% flagged (solver failure or fewer "
-             f"than 8 valid lights). Median RMS residual {r['residual_rms_median']}, median steps "
-             f"{r['steps_median']:.0f}, median valid observations {r['observed_median']:.0f}.", ""]
+             f"than 8 valid lights). Median RMS residual {r['residual_rms_median']} (unflagged texels); over the "
+             f"{r['observed_samples']} texels with observations, median steps {r['steps_median']:.0f} and median "
+             f"valid observations {r['observed_median']:.0f}.", ""]
     if "against_truth" in r:
         a = r["against_truth"]
         lines += ["| against the simulated truth | median | 95th percentile |", "| --- | --- | --- |",
