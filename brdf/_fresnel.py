@@ -66,7 +66,7 @@ def fresnel_transmittance(
     and out of a diffusion BSSRDF (Jensen et al. 2001, "A practical model for
     subsurface light transport", S_d). Elementwise (any layout).
     """
-    return 1.0 - fresnel_dielectric(jnp.clip(cos_theta, 0.0, 1.0), eta)
+    return 1.0 - fresnel_dielectric(cos_theta, eta)  # fresnel_dielectric clamps cos_theta
 
 
 def fresnel_complex(

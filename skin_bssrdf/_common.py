@@ -65,10 +65,6 @@ def as_float(x) -> Array:
     return x
 
 
-# The one dtype rule lives with the safe numerics in brdf.
-float_dtype = widest_float
-
-
 def cast_floats(tree, dtype):
     """Every floating array leaf of ``tree`` (a profile, a tuple of arrays) cast to ``dtype``."""
 
@@ -80,9 +76,9 @@ def cast_floats(tree, dtype):
 
 def channels(*xs) -> tuple[Array, ...]:
     """Broadcast parameters to one common shape ``[..., C]`` (scalars become ``[1]``) and one dtype
-    (:func:`float_dtype`)."""
+    (:func:`brdf.widest_float`)."""
     xs = [as_float(x) for x in xs]
-    dtype = float_dtype(*xs)
+    dtype = widest_float(*xs)
     shape = jnp.broadcast_shapes(*(x.shape for x in xs))
     if len(shape) == 0:
         shape = (1,)

@@ -9,7 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._common import AbstractProfile, align, as_float, check, float_dtype, radius_arg
+from brdf import widest_float
+
+from ._common import AbstractProfile, align, as_float, check, radius_arg
 from ._radius import energy_radius
 
 # d'Eon et al. 2007 (Table 1 / GPU Gems 3 Figure 14-13): variances in mm^2 and
@@ -48,7 +50,7 @@ class SumOfGaussians(AbstractProfile):
             raise ValueError(
                 f"SumOfGaussians: weights must have shape [..., K={variances.shape[0]}, C], got {weights.shape}"
             )
-        dtype = float_dtype(weights, variances)
+        dtype = widest_float(weights, variances)
         self.weights, self.variances = weights.astype(dtype), variances.astype(dtype)
 
     @classmethod

@@ -44,7 +44,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy.spatial import cKDTree
 
-from ._common import AbstractProfile, cast_floats, float_dtype
+from brdf import widest_float
+
+from ._common import AbstractProfile, cast_floats
 
 # Rows per chunk are chosen so that one chunk's gathered neighbours
 # (chunk x K x C floats, C = 3) stay near this many elements (~50 MB in float64).
@@ -229,7 +231,7 @@ class DiffusionOperator(eqx.Module):
         explicitly: a float32 operator applied with a float64 profile (or the reverse) is not an
         implicit promotion, which ``jax_numpy_dtype_promotion="strict"`` refuses."""
         params = jax.tree_util.tree_leaves(eqx.filter(profile, eqx.is_inexact_array))
-        dt = float_dtype(self.distance, *params, *arrays)
+        dt = widest_float(self.distance, *params, *arrays)
         fields = (self.distance, self.area, self.self_radius)
         op = eqx.tree_at(lambda o: (o.distance, o.area, o.self_radius), self, cast_floats(fields, dt))
         return op, cast_floats(profile, dt), tuple(cast_floats(jnp.asarray(a), dt) for a in arrays)

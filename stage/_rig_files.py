@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import read_json
+from ._files import read_json, read_light_table
 from ._rig import _LSX_DUPLICATE_ROW, _LSX_DUPLICATED_ROW, _LSX_ORIGINAL_VALUE_CM, Rig, calibrate
-from ._rig_io import rig_from_dict
+from ._rig_io import position_array, position_key, rig_from_dict
 
 __all__ = ["AXES", "POSITION_UNITS", "load_rig_file", "rig_file_subsets", "up_rotation"]
 
@@ -93,8 +93,6 @@ def _table(path: Path) -> np.ndarray:
         except (ValueError, OSError) as err:
             raise ValueError(f"{path}: not a readable .npy array ({err})") from None
     else:
-        from ._files import read_light_table
-
         arr = read_light_table(path, "light positions")
     arr = np.asarray(arr)
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0 or not np.issubdtype(arr.dtype, np.number):
@@ -189,15 +187,8 @@ def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str,
             units_, up_ = units or "cm", up or "+y"
             rest = {k: v for k, v in doc.items() if k in ("intensities", "calibration")}
         else:
-            key = "positions" if "positions" in doc else "directions" if "directions" in doc else None
-            if key is None:
-                raise ValueError(f"{where}: rig needs field 'positions' or 'directions' ([L, 3])")
-            try:
-                pos = np.asarray(doc[key], np.float64)
-            except (TypeError, ValueError) as err:
-                raise ValueError(f"{where}: field {key!r} must be [L, 3] numbers ({err})") from None
-            if pos.ndim != 2 or pos.shape[1] != 3 or len(pos) == 0:
-                raise ValueError(f"{where}: field {key!r} must be [L, 3] with L >= 1, got shape {pos.shape}")
+            key = position_key(doc, where)
+            pos = position_array(doc, key, where)
             declared = "directions" if key == "directions" else _declared_units(doc, where)
             units_ = units or declared or "mm"
             up_ = up or doc.get("up", "+y")

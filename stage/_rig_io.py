@@ -48,24 +48,38 @@ def rig_to_dict(rig: Rig) -> dict:
             "near_field": bool(rig.near_field), "units": dict(UNITS)}
 
 
-def rig_from_dict(doc: object, where: str = "rig") -> Rig:
-    """A rig from its dict (module docstring schema). Raises ValueError starting
-    with ``where`` (a file name, say) and naming the field that is missing or
-    malformed."""
-    if not isinstance(doc, Mapping):
-        raise ValueError(f"{where}: a rig must be a JSON object, got {type(doc).__name__}")
+def position_key(doc: Mapping, where: str) -> str:
+    """Which field holds the lights: ``"positions"`` or else ``"directions"``;
+    ValueError starting with ``where`` when neither is there."""
     key = "positions" if "positions" in doc else "directions" if "directions" in doc else None
     if key is None:
         raise ValueError(f"{where}: rig needs field 'positions' or 'directions' ([L, 3])")
-    near = doc.get("near_field", "positions" in doc and "directions" not in doc)
-    if not isinstance(near, (bool, np.bool_)) and near not in (0, 1):
-        raise ValueError(f"{where}: field 'near_field' must be true or false, got {near!r}")
+    return key
+
+
+def position_array(doc: Mapping, key: str, where: str) -> np.ndarray:
+    """Field ``key`` of ``doc`` as float64 [L, 3], L >= 1; ValueError starting
+    with ``where`` and naming the field otherwise."""
     try:
         pos = np.asarray(doc[key], np.float64)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{where}: field {key!r} must be [L, 3] numbers ({err})") from None
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise ValueError(f"{where}: field {key!r} must be [L, 3] with L >= 1, got shape {pos.shape}")
+    return pos
+
+
+def rig_from_dict(doc: object, where: str = "rig") -> Rig:
+    """A rig from its dict (module docstring schema). Raises ValueError starting
+    with ``where`` (a file name, say) and naming the field that is missing or
+    malformed."""
+    if not isinstance(doc, Mapping):
+        raise ValueError(f"{where}: a rig must be a JSON object, got {type(doc).__name__}")
+    key = position_key(doc, where)
+    near = doc.get("near_field", "positions" in doc and "directions" not in doc)
+    if not isinstance(near, (bool, np.bool_)) and near not in (0, 1):
+        raise ValueError(f"{where}: field 'near_field' must be true or false, got {near!r}")
+    pos = position_array(doc, key, where)
     if key == "directions":
         norm = np.linalg.norm(pos, axis=1, keepdims=True)
         if not np.all(norm > 0):

@@ -85,12 +85,6 @@ def split_material(material):
     return None, material
 
 
-def _shade(material: brdf.AbstractBRDF, wi, wo, irradiance, visible):
-    """radiance [Lc, P, C] = f(wi, wo) cos_i E V for a chunk of lights
-    (``stage.reflected_radiance_lights``: one light at a time)."""
-    return reflected_radiance_lights(material, wi, wo, irradiance, visible)
-
-
 def _subsurface(sss: Subsurface, wi, wo, irradiance, lit, seen):
     """L_ss [Lc, P, C]: Jensen 2001 eq. 5 through the diffusion operator
     (``stage.subsurface_irradiance``, the operator, ``stage.subsurface_exitance``)."""
@@ -115,7 +109,7 @@ def _fused_chunk(terms, subsurface, sss_weight, rig_chunk: Rig, surface: Surface
     out = None
     visible = light_vis & seen[None]
     for m, wgt in terms:
-        r = _shade(m, wi, wo, irr, visible) * wgt.astype(irr.dtype)
+        r = reflected_radiance_lights(m, wi, wo, irr, visible) * wgt.astype(irr.dtype)
         out = r if out is None else out + r
     if subsurface is not None:
         r = _subsurface(subsurface, wi, wo, irr, light_vis, seen) * sss_weight.astype(irr.dtype)
@@ -159,6 +153,15 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
     terms = [(m, jnp.asarray(w, jnp.float32)) for m, w in terms]
     sss_weight = jnp.asarray(sss_weight, jnp.float32)
     bar = Phase(progress, "simulate", len(cameras) * -(-P // sample_chunk) * L)
+    # The light chunks (padded to the chunk size by repeating a light: one
+    # compilation) are the same for every view and sample chunk: gather them once.
+    light_chunks = []
+    for s in range(0, L, light_chunk):
+        e = min(s + light_chunk, L)
+        pad = light_chunk - (e - s) if L > light_chunk else 0
+        li = np.minimum(np.arange(s, e + pad), e - 1)
+        light_chunks.append((s, e, pad, Rig(position=rig.position[li], intensity=rig.intensity[li],
+                                            solid_angle=rig.solid_angle[li], near_field=rig.near_field)))
     for v, cam in enumerate(cameras):
         _check_in_front(v, cam, surface.position)
         for ps0 in range(0, P, sample_chunk):
@@ -180,14 +183,8 @@ def _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibili
                 lv_rows = PackedMask(light_visibility.bits[idx], light_visibility.n)
             else:
                 lv_rows = light_visibility[idx]
-            for s in range(0, L, light_chunk):
-                e = min(s + light_chunk, L)
-                lv_c = as_mask(lv_rows, s, e).T  # [Lc, Pc]
-                # Pad the last light chunk to the chunk size (repeat a light, invisible): one compilation.
-                pad = light_chunk - (e - s) if L > light_chunk else 0
-                li = np.minimum(np.arange(s, e + pad), e - 1)
-                rig_c = Rig(position=rig.position[li], intensity=rig.intensity[li], solid_angle=rig.solid_angle[li],
-                            near_field=rig.near_field)
+            for s, e, pad, rig_c in light_chunks:
+                lv_c = as_mask(lv_rows, s, e).T  # [Lc, Pc]; the padding lights are invisible
                 lv_p = np.zeros((e - s + pad, lv_c.shape[1]), bool)
                 lv_p[: e - s] = lv_c
                 out, msk = _fused_chunk(sub_terms, subsurface, sss_weight, rig_c, sub, wo_world, jnp.asarray(lv_p),

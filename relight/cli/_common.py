@@ -16,7 +16,7 @@ from tqdm.auto import tqdm
 
 import stage
 
-from ..io._json import write_json as _write_json
+from ..io._json import write_json as write_json  # reports and settings (atomic, indent 2)
 
 
 class CLIError(Exception):
@@ -54,11 +54,6 @@ class Bar:
 
 def bar(total, desc, quiet, leave=False) -> Bar:
     return Bar(total, desc, quiet, leave)
-
-
-def write_json(path: Path, obj) -> None:
-    """``relight.io.write_json`` (atomic, indent 2): reports and settings."""
-    _write_json(path, obj, indent=2)
 
 
 def write_settings(out: Path, command: str, args, **resolved) -> None:

@@ -17,6 +17,7 @@ from brdf import atomic_write_text
 from ..fitting._driver import SOLVERS as METHODS
 from ..image._preview import texture_view
 from ..io import (
+    is_diligent_folder,
     is_map_set,
     is_photo_capture,
     load_texel_capture,
@@ -178,13 +179,6 @@ def run(args) -> int:
     return 0
 
 
-def is_diligent_folder(folder: Path) -> bool:
-    """A DiLiGenT-layout object folder (relight.io.read_diligent): light_directions.txt,
-    light_intensities.txt and mask.png, and no capture.json."""
-    return (folder.is_dir() and not (folder / "capture.json").exists()
-            and all((folder / f).is_file() for f in ("light_directions.txt", "light_intensities.txt", "mask.png")))
-
-
 def _angular_error_deg(n: np.ndarray, gt: np.ndarray) -> np.ndarray:
     n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
     return np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
@@ -200,7 +194,7 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
 
     import relight
 
-    from ..io import diligent_capture, read_diligent, write_png
+    from ..io import diligent_capture, lambert_normals, read_diligent, write_png
 
     _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
     at_least("--subsample", args.subsample, 1)
@@ -235,11 +229,7 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
     if d.normals_gt is not None:
         gt = d.normals_gt[d.mask].astype(np.float64)
         err = _angular_error_deg(n, gt)
-        # The benchmark's baseline: grey Lambertian least squares on every light.
-        img = d.images / d.light_intensities[:, None, None, :]
-        grey = np.minimum(0.2989 * img[..., 0] + 0.5870 * img[..., 1] + 0.1140 * img[..., 2], 1.0)
-        b_ls = np.linalg.lstsq(d.light_directions.astype(np.float64), grey[:, d.mask], rcond=None)[0].T
-        base = _angular_error_deg(b_ls, gt)
+        base = _angular_error_deg(lambert_normals(d), gt)
         report["diligent"]["normal_error_deg"] = {
             "mean": float(err.mean()), "median": float(np.median(err)), "p95": float(np.percentile(err, 95)),
             "lambert_ls_baseline_mean": float(base.mean()), "lambert_ls_baseline_median": float(np.median(base))}

@@ -220,11 +220,11 @@ def _run_photos(src: Path, args) -> int:
     exposure = None
     outputs = []
     with bar(capture.n_views, "relight (cameras)", args.quiet) as b:
-        for view in capture.iter_views():
+        for v, view in enumerate(capture.iter_views()):
             L, H, W, C = view.radiance.shape
             inside = view.mask.reshape(1, H * W, 1)
             if C != weights.shape[-1] and C != 1:
-                raise CLIError(f"{capture.files(0)[0]}: {C} channels, but the rig and the map have "
+                raise CLIError(f"{capture.files(v)[0]}: {C} channels, but the rig and the map have "
                                f"{weights.shape[-1]}")
             w = weights if C == weights.shape[-1] else w_mean.astype(np.float32)  # grey photographs: mean weight
             relit = np.asarray(relight_olat_sweep(view.radiance.reshape(L, H * W, C), w))  # [K, P, C]

@@ -178,9 +178,13 @@ def fitted_directions(p: Params, wi, wo):
     view would otherwise zero the whole prediction and its gradient, and the
     solver would stop there reporting success). Fitter geometry, not physics."""
     R = frame(p["normal"], p["phi"])
-    wi_f, wo_f = wi @ R.T, wo @ R.T
-    wo_f = safe_normalize(jnp.concatenate([wo_f[..., :2], jnp.maximum(wo_f[..., 2:3], _COS_O_MIN)], axis=-1))
-    return wi_f, wo_f
+    return wi @ R.T, view_above_horizon(wo @ R.T)
+
+
+def view_above_horizon(wo):
+    """Unit views wo [..., 3] (local frame) with cos kept >= _COS_O_MIN: the
+    fitter's clamp of :func:`fitted_directions`, shared with the subsurface fit."""
+    return safe_normalize(jnp.concatenate([wo[..., :2], jnp.maximum(wo[..., 2:3], _COS_O_MIN)], axis=-1))
 
 
 def predict(p: Params, lay: Layout, wi, wo, irr):
@@ -310,4 +314,5 @@ def physical_vector(p: Params, lay: Layout):
 
 
 __all__ = ["Layout", "Params", "unpack", "pack", "material", "fitted_directions", "predict", "residual_and_jacobian",
-           "materialised_residual", "robust", "physical_vector", "frame", "LAMBERT", "BLINN_PHONG", "GGX", "GGX_ANISO"]
+           "materialised_residual", "robust", "physical_vector", "frame", "view_above_horizon",
+           "LAMBERT", "BLINN_PHONG", "GGX", "GGX_ANISO"]

@@ -25,11 +25,10 @@ import numpy as np
 import brdf
 import skin_bssrdf
 import stage
-from brdf import safe_normalize
 
 from ..materials._maps import SUBSURFACE, LadderBRDF
 from ._driver import Fit
-from ._model import _COS_O_MIN
+from ._model import view_above_horizon
 
 _GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 
@@ -52,8 +51,8 @@ def _terms(capture, surface, fitted: Fit, eta):
         spec = stage.reflected_radiance_lights(spec_brdf, wi, wo, irr)
         y.append(np.asarray(capture.radiance[v], np.float64) - np.asarray(spec, np.float64))
         # The fit's local Lambert term, with the view kept above the fitted horizon as the fitter keeps it.
-        wo_up = safe_normalize(jnp.concatenate([wo[:, :2], jnp.maximum(wo[:, 2:3], _COS_O_MIN)], axis=-1))
-        lam.append(np.asarray(stage.reflected_radiance_lights(brdf.Lambert(maps.rho_d), wi, wo_up, irr), np.float64))
+        lambert = stage.reflected_radiance_lights(brdf.Lambert(maps.rho_d), wi, view_above_horizon(wo), irr)
+        lam.append(np.asarray(lambert, np.float64))
         wo_v.append(np.asarray(wo, np.float64))
         if E is None:
             E = np.asarray(stage.subsurface_irradiance(wi, irr, eta, jnp.asarray(lit)), np.float64)

@@ -13,6 +13,8 @@ from ._capture import read_capture as read_capture
 from ._capture import write_capture as write_capture
 from ._diligent import DiligentData as DiligentData
 from ._diligent import diligent_capture as diligent_capture
+from ._diligent import is_diligent_folder as is_diligent_folder
+from ._diligent import lambert_normals as lambert_normals
 from ._diligent import read_diligent as read_diligent
 from ._errors import ImageFormatError as ImageFormatError
 from ._errors import check_radiance as check_radiance
@@ -72,9 +74,11 @@ __all__ = [
     "TextureSet",
     "check_radiance",
     "exr_header",
+    "is_diligent_folder",
     "is_map_set",
     "is_photo_capture",
     "jsonable",
+    "lambert_normals",
     "load_texel_capture",
     "load_texel_maps",
     "MESH_UNITS",

@@ -25,7 +25,7 @@ import stage
 from ._errors import ImageFormatError, check_radiance
 from ._png import read_png
 
-__all__ = ["DiligentData", "diligent_capture", "read_diligent"]
+__all__ = ["DiligentData", "diligent_capture", "is_diligent_folder", "lambert_normals", "read_diligent"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +49,22 @@ class DiligentData:
     mask: np.ndarray
     normals_gt: np.ndarray | None
     filenames: tuple[str, ...]
+
+
+def is_diligent_folder(folder: str | os.PathLike) -> bool:
+    """A DiLiGenT-layout object folder (:func:`read_diligent`): light_directions.txt,
+    light_intensities.txt and mask.png, and no capture.json."""
+    folder = Path(folder)
+    return (folder.is_dir() and not (folder / "capture.json").exists()
+            and all((folder / f).is_file() for f in ("light_directions.txt", "light_intensities.txt", "mask.png")))
+
+
+def lambert_normals(data: DiligentData) -> np.ndarray:
+    """The benchmark's baseline: grey Lambertian least squares on every light,
+    float64 [P, 3] per mask pixel (albedo-scaled, not unit length)."""
+    img = data.images / data.light_intensities[:, None, None, :]
+    grey = np.minimum(0.2989 * img[..., 0] + 0.5870 * img[..., 1] + 0.1140 * img[..., 2], 1.0)
+    return np.linalg.lstsq(data.light_directions.astype(np.float64), grey[:, data.mask], rcond=None)[0].T
 
 
 def _light_names(folder: Path) -> list[str]:

@@ -179,7 +179,6 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     views = np.sum(weight > 0, axis=0).astype(np.int64)
     unseen = views < int(min_views)
     mask[:, :, unseen] = False
-    radiance[:, :, unseen] = 0.0
     radiance = np.where(mask[..., None], radiance, np.float32(0))
     coverage = surface.to_texture(views.astype(np.int32), fill=np.int32(-1))
     capture = stage.Capture(radiance=jnp.asarray(radiance), mask=jnp.asarray(mask), rig=photos.rig,

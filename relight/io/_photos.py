@@ -32,6 +32,7 @@ import numpy as np
 
 import stage
 
+from ..image._tonemap import srgb_decode, srgb_encode, to_uint16
 from ._capture import _atomic_folder
 from ._errors import ImageFormatError, check_radiance
 from ._exr import read_exr, write_exr
@@ -111,6 +112,11 @@ def _encoding(value, where: str) -> float | str:
         if np.isfinite(g) and g > 0:
             return g
     raise _err(where, f"must be 'linear', 'srgb' or 'gamma:G' (G > 0), got {value!r}")
+
+
+def _png_unit(raw: np.ndarray) -> np.ndarray:
+    """A PNG's stored values (8 or 16 bit) as float64 fractions of full scale."""
+    return raw.astype(np.float64) / (65535.0 if raw.dtype == np.uint16 else 255.0)
 
 
 def _distortion(entry: Mapping, where: str) -> dict | None:
@@ -256,14 +262,11 @@ class PhotoCapture:
             stored = img
         else:
             raw = read_png(path)
-            full = 65535.0 if raw.dtype == np.uint16 else 255.0
-            img = raw.astype(np.float64) / full
+            img = _png_unit(raw)
             if raw.shape[-1] in (2, 4):
                 img = img[..., :-1]  # drop alpha
             stored = img
             if encoding == "srgb":
-                from ..image._tonemap import srgb_decode
-
                 img = np.asarray(srgb_decode(img), np.float64)
             elif not isinstance(encoding, str):
                 img = img**encoding
@@ -286,8 +289,7 @@ class PhotoCapture:
         if path.suffix.lower() == ".exr":
             m = read_exr(path)[..., 0] > 0.5
         elif path.suffix.lower() == ".png":
-            raw = read_png(path)
-            m = raw[..., 0].astype(np.float64) > 0.5 * (65535.0 if raw.dtype == np.uint16 else 255.0)
+            m = _png_unit(read_png(path)[..., 0]) > 0.5
         else:
             raise _err(path, "a mask must be .png or .exr")
         if m.shape != v["size"]:
@@ -399,12 +401,10 @@ def _write_photos(folder, images, rig, cameras, names, fmt, encoding, enc, half,
             else:
                 x = np.clip(img.astype(np.float64), 0.0, 1.0)
                 if enc == "srgb":
-                    from ..image._tonemap import srgb_encode
-
                     x = np.asarray(srgb_encode(x), np.float64)
                 elif not isinstance(enc, str):
                     x = x ** (1.0 / enc)
-                write_png(path, np.round(x * 65535.0).astype(np.uint16))
+                write_png(path, to_uint16(x))
         if masks is not None and masks[v] is not None:
             write_png(folder / name / "mask.png", np.where(np.asarray(masks[v], bool), 255, 0).astype(np.uint8))
             entry["mask"] = f"{name}/mask.png"

@@ -59,7 +59,7 @@ from ..envmap._sh import sh_irradiance, sh_project
 from ..envmap._weights import light_weights, light_weights_barycentric
 from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE, LadderBRDF, MaterialMaps
 from . import _fast as fast
-from ._options import _BY_NAME, METHODS, AbstractMethod, resolve_method
+from ._options import _BY_NAME, METHODS, AbstractMethod, _int_at_least, resolve_method
 
 __all__ = ["METHODS", "DEFAULTS", "render_samples"]
 
@@ -104,10 +104,8 @@ def _settings(method, settings: dict) -> dict:
                          f"{sorted(set(_COMMON) | set(type(m).KEYWORDS))}")
     out = {**_COMMON, **rest, **m.settings(), "method": m}
     if out["chunk"] is not None:
-        v = out["chunk"]
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-            raise ValueError(f"method {m.name!r}: setting 'chunk' must be an integer >= 1, got {v!r}")
-        out["chunk"] = int(v)
+        _int_at_least(m.name, "chunk", out["chunk"], 1)
+        out["chunk"] = int(out["chunk"])
     if not (isinstance(out["eta"], (int, float)) and out["eta"] >= 1.0):
         raise ValueError(f"setting 'eta' (relative index of refraction) must be a float >= 1, got {out['eta']!r}")
     if out["rotation"] is not None:

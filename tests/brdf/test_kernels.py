@@ -65,11 +65,15 @@ def test_component_major_equals_last_axis(family, term, key):
     assert_close(cm, la[:, 0], rtol=0, atol=1e-12)
 
 
+def roughness_breaks(alpha):
+    """Quadrature panel edges in theta scaled to the smallest roughness of ``alpha``."""
+    amin = min(a for a in alpha if a is not None)
+    return tuple(sorted({b for b in (0.3 * amin, amin, 3 * amin, 0.8) if b < np.pi / 2 - 0.05}))
+
+
 def projected_area(d_fn, alpha):
     """integral D(wm) cos(theta_m) dwm by composite Gauss-Legendre (panels scaled to the roughness)."""
-    amin = min(a for a in alpha if a is not None)
-    breaks = tuple(sorted({b for b in (0.3 * amin, amin, 3 * amin, 0.8) if b < np.pi / 2 - 0.05}))
-    dirs, w = brdf.check.hemisphere_quadrature(n_theta=96, n_phi=64, breaks=breaks)
+    dirs, w = brdf.check.hemisphere_quadrature(n_theta=96, n_phi=64, breaks=roughness_breaks(alpha))
     return jnp.sum(d_fn(dirs, *alpha)[:, 0] * dirs[:, 2] * w)
 
 
@@ -88,9 +92,7 @@ def test_visible_normals_are_normalised(family, alpha):
     # Heitz 2014, eq. 18 / Heitz 2018 sec. 2: integral G1(wo) max(0, wo.wm) D(wm) dwm = cos(theta_o),
     # i.e. G1/cos(wo) times that integral is 1: D and Lambda are consistent. 1e-5: the
     # quadrature error at the kink wo.wm = 0 (measured <= 3e-7 with these nodes).
-    amin = min(a for a in alpha if a is not None)
-    breaks = tuple(sorted({b for b in (0.3 * amin, amin, 3 * amin, 0.8) if b < np.pi / 2 - 0.05}))
-    dirs, w = brdf.check.hemisphere_quadrature(n_theta=96, n_phi=256, breaks=breaks)
+    dirs, w = brdf.check.hemisphere_quadrature(n_theta=96, n_phi=256, breaks=roughness_breaks(alpha))
     d = kernel(family, "d")(dirs, *alpha)[:, 0]
     for cz in (1.0, 0.5, 0.05):
         wo = from_cos(cz, 0.4)
