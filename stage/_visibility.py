@@ -190,9 +190,22 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
     return PackedMask(bits, L) if packed else vis
 
 
-def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera) -> np.ndarray:
-    """bool [V, P]: sample p faces camera v, projects inside its image, and is not occluded."""
-    occ = Occluder(mesh, surface)
+def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera, *,
+                      occluder: Occluder | None = None, candidates=None) -> np.ndarray:
+    """bool [V, P]: sample p faces camera v, projects inside its image, and is not occluded.
+
+    ``occluder``: an ``Occluder(mesh, surface)`` built once and reused across
+    calls (building one costs a BVH); ``candidates``: bool [P], only these
+    samples are tested (ray cast), the others are False."""
+    occ = Occluder(mesh, surface) if occluder is None else occluder
+    P = surface.num_samples
+    if occ.origin.shape != (P, 3):
+        raise ValueError(f"camera_visibility: occluder was built for {occ.origin.shape[0]} samples, surface has {P}")
+    if candidates is not None:
+        candidates = np.asarray(candidates)
+        if candidates.shape != (P,) or candidates.dtype != bool:
+            raise ValueError(f"camera_visibility: candidates must be bool [{P}], got {candidates.dtype} "
+                             f"{candidates.shape}")
     origins, n = occ.origin, occ.normal
     out = []
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
@@ -207,7 +220,8 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
         else:
             targets = np.broadcast_to(np.asarray(cam.center, dtype=np.float64), origins.shape)
         facing = np.sum((targets - origins) * n, axis=1) > 0
-        cand = np.nonzero(inside & facing)[0]
+        keep = inside & facing if candidates is None else inside & facing & candidates
+        cand = np.nonzero(keep)[0]
         vis = np.zeros(len(origins), dtype=bool)
         vis[cand] = occ.segments_clear(origins[cand], targets[cand])
         out.append(vis)

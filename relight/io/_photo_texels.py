@@ -128,6 +128,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     nrm = np.asarray(surface.normal, np.float64)
     lit = np.asarray(stage.light_visibility(mesh, surface, photos.rig), bool).T if shadows else None  # [L, P]
     cos_graze = float(np.cos(np.deg2rad(grazing_deg)))
+    occluder = stage.Occluder(mesh, surface)  # one BVH for every camera
     bar = stage.Phase(progress, "photos to texels", V)
     radiance = mask = None
     weight = np.zeros((V, P), np.float32)
@@ -159,10 +160,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
         in_mask[cand] = np.all(view.mask.reshape(-1)[taps[cand]], axis=1)
         reasons["outside_mask"] = int(np.sum(cand & ~in_mask))
         cand &= in_mask
-        seen = np.zeros(P, bool)
-        idx = np.flatnonzero(cand)
-        if len(idx):
-            seen[idx] = stage.camera_visibility(mesh, surface.subset(idx), [cam])[0]
+        seen = stage.camera_visibility(mesh, surface, [cam], occluder=occluder, candidates=cand)[0]
         reasons["occluded"] = int(np.sum(cand & ~seen))
         idx = np.flatnonzero(seen)
         t, wt = taps[idx], w[idx].astype(np.float32)

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 import stage
 
@@ -46,6 +47,15 @@ def test_camera_visibility_hides_the_back_and_the_occluded():
     assert cv[0, (r > 36.0) & inside_view].all()
     # From below, the plane faces away: nothing is seen.
     assert not cv[1].any()
+    # A shared occluder and a candidate subset give the same answer on the candidates, False elsewhere.
+    occ = stage.Occluder(m, s)
+    cand = np.asarray(s.position)[:, 0] > 0
+    sub = stage.camera_visibility(m, s, [top, below], occluder=occ, candidates=cand)
+    np.testing.assert_array_equal(sub, cv & cand[None])
+    with pytest.raises(ValueError, match="occluder was built for"):
+        stage.camera_visibility(m, s.subset(np.arange(10)), [top], occluder=occ)
+    with pytest.raises(ValueError, match="candidates"):
+        stage.camera_visibility(m, s, [top], candidates=np.ones(3, bool))
 
 
 def test_occluder_is_the_ray_caster_of_light_visibility():
