@@ -59,12 +59,16 @@ from ._texture_set import read_maps as read_maps
 from ._texture_set import texture_set as texture_set
 from ._texture_set import write_maps as write_maps
 from ._texture_set import write_texture_set as write_texture_set
+from ._textures import HEAD_SKIN_FILES as HEAD_SKIN_FILES
+from ._textures import head_skin_textures as head_skin_textures
+from ._textures import read_texture as read_texture
 
 __all__ = [
     "CaptureData",
     "CaptureReader",
     "DiligentData",
     "ExrPart",
+    "HEAD_SKIN_FILES",
     "ImageFormatError",
     "PhotoCapture",
     "PhotoTexelReport",
@@ -74,6 +78,7 @@ __all__ = [
     "TextureSet",
     "check_radiance",
     "exr_header",
+    "head_skin_textures",
     "is_diligent_folder",
     "is_map_set",
     "is_photo_capture",
@@ -97,6 +102,7 @@ __all__ = [
     "read_json",
     "read_maps",
     "read_pfm",
+    "read_texture",
     "read_photo_capture",
     "read_png",
     "spec_mesh",
