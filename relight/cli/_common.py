@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+import skin_bssrdf
 import stage
 
 from ..io._json import write_json as write_json  # reports and settings (atomic, indent 2)
@@ -274,3 +275,32 @@ def demo_material(surface: stage.Surface):
     alpha = 0.35 + 0.15 * np.sin(9 * u + 2.0) * np.sin(7 * v)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return f32(rho_d), f32(f0), f32(alpha[:, None])
+
+
+# ------------------------------------------------------------------ subsurface scattering
+
+# Jensen et al. 2001's measured materials (skin_bssrdf.JENSEN2001), the names ``--subsurface`` takes: all
+# but spectralon, whose sigma_a = 0 makes the diffuse mean free path infinite.
+SUBSURFACE_PRESETS = tuple(sorted(k for k, m in skin_bssrdf.JENSEN2001.items() if min(m.sigma_a) > 0))
+# Energy fraction of the diffusion profile inside the operator's neighbour radius
+# (skin_bssrdf.energy_radius): the 1% beyond it is dropped, as relight.render drops it.
+SUBSURFACE_ENERGY = 0.99
+
+
+def preset_mean_free_path(name: str) -> tuple[np.ndarray, float]:
+    """(diffuse mean free path [3] in mm, eta) of a Jensen et al. 2001 material
+    (``skin_bssrdf.JENSEN2001``): mfp = 1 / sigma_tr, sigma_tr = sqrt(3 sigma_a
+    sigma_t') (Jensen & Buhler 2002 sec. 4; independent of eta), the diffuse
+    mean free path Christensen & Burley 2015's ``dmfp`` fit takes. CLIError on
+    an unknown name (listing the known ones)."""
+    key = name.lower().replace(" ", "").replace("_", "")
+    if key not in SUBSURFACE_PRESETS:
+        if key in skin_bssrdf.JENSEN2001:
+            raise CLIError(f"--subsurface {name}: sigma_a = 0, so its diffuse mean free path is infinite; "
+                           f"choose one of {', '.join(SUBSURFACE_PRESETS)}")
+        raise CLIError(f"--subsurface {name}: not a preset ({', '.join(SUBSURFACE_PRESETS)}) nor an existing "
+                       "mean-free-path EXR")
+    m = skin_bssrdf.JENSEN2001[key]
+    _, mfp = skin_bssrdf.albedo_from_coefficients(jnp.asarray(m.sigma_a, jnp.float32),
+                                                  jnp.asarray(m.sigma_s_prime, jnp.float32), m.eta)
+    return np.asarray(mfp, np.float64), float(m.eta)

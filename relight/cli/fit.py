@@ -1,7 +1,13 @@
 """``relight fit``: fit per-texel reflectance to a texel-space capture folder,
 or to a camera-space photo capture (docs/capture_layout.md) resampled onto a
 mesh's texel grid (``relight.io.photos_to_texels``), and write the texture set,
-a Mitsuba 3 scene, previews and a report."""
+a Mitsuba 3 scene, previews and a report.
+
+``--subsurface region|texel|auto`` (texel-space captures) runs
+``relight.fit_subsurface`` after the BRDF fit: the diffuse mean free path
+(mm, per channel; per region of ``--regions``, per texel, or the held-out
+ladder of none / region / texel) and the profile albedo; the map set then
+carries mean_free_path.exr and model.exr = subsurface where chosen."""
 
 from __future__ import annotations
 
@@ -50,6 +56,11 @@ from ._common import (
 
 # relight.fit's rungs (subsurface is fitted afterwards by fit_subsurface) and the ladder.
 FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
+# --subsurface: off, or fit_subsurface's per= (region: one mfp per region of --regions; texel: per texel; auto:
+# the ladder none / region / texel by held-out error).
+SUBSURFACE_MODES = ("off", "region", "texel", "auto")
+# The relative index of the subsurface Fresnel transmittances when the capture does not record one (skin's).
+DEFAULT_ETA = 1.4
 
 
 def add_parser(sub) -> None:
@@ -77,6 +88,16 @@ def add_parser(sub) -> None:
                    help="reflectance model: a rung of the ladder or auto (per-texel selection on held-out lights); "
                         "default: relight.fit's own (ggx)")
     p.add_argument("--normals", action="store_true", help="also fit the shading normal")
+    p.add_argument("--subsurface", default="off", choices=SUBSURFACE_MODES,
+                   help="texel-space captures: after the BRDF fit, fit subsurface scattering (the diffuse mean free "
+                        "path, mm, per channel): region (one per region of --regions; default one region), texel "
+                        "(per texel), auto (none / region / texel per texel by held-out error); default off")
+    p.add_argument("--regions", default=None, metavar="LABELS",
+                   help="with --subsurface region|auto: a label map on the texel grid (.png: each distinct colour "
+                        "a region; .exr: integer labels in the first channel; nearest texel if another size)")
+    p.add_argument("--eta", type=float, default=None,
+                   help="with --subsurface: relative index of refraction of the Fresnel transmittances (default: "
+                        f"the capture's metadata.subsurface.eta, else {DEFAULT_ETA})")
     add_envmap(p, "environment map for the Mitsuba scene")
     finish_parser(p, run)
 
@@ -115,11 +136,14 @@ def run(args) -> int:
     times = {}
     t0 = time.perf_counter()
     capture_dir = Path(args.capture)
-    if is_diligent_folder(capture_dir):
+    diligent = is_diligent_folder(capture_dir)
+    photos = not diligent and is_photo_capture(capture_dir)
+    _check_subsurface_flags(args, capture_dir, "diligent" if diligent else "photos" if photos else "texel")
+    if diligent:
         return _run_diligent(args, capture_dir, kwargs)
     if args.subsample != 1:
         raise CLIError("--subsample applies to DiLiGenT folders only")
-    photos = is_photo_capture(capture_dir)
+    metadata = {}
     coverage = None
     if photos:
         capture, surface, mesh, info, coverage = _ingest_photos(args, capture_dir)
@@ -135,16 +159,23 @@ def run(args) -> int:
     t0 = time.perf_counter()
     with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
         fitted = relight.fit(capture, surface, progress=b, **kwargs)
-    maps = fitted.maps(surface)
     times["fit_s"] = time.perf_counter() - t0
+    sss = None
+    if args.subsurface != "off":
+        t0 = time.perf_counter()
+        fitted, sss = _fit_subsurface(args, capture, surface, fitted, metadata)
+        times["subsurface_s"] = time.perf_counter() - t0
+    maps = fitted.maps(surface)
 
     t0 = time.perf_counter()
     cams = [stage.camera_to_dict(c, f"cam{i:03d}") for i, c in enumerate(capture.cameras)]
     # The capture's rig travels with the maps: `relight render --method rig` uses it by default.
     stage.save_rig(out / "rig.json", capture.rig)
-    textures = texture_set(maps, surface, surface_info=info,
-                           metadata={"capture": str(capture_dir.resolve()), "fit_options": kwargs, "cameras": cams,
-                                     "rig": "rig.json", "source": "relight fit"})
+    map_meta = {"capture": str(capture_dir.resolve()), "fit_options": kwargs, "cameras": cams, "rig": "rig.json",
+                "source": "relight fit"}
+    if sss is not None:
+        map_meta["subsurface"] = sss  # its eta is what `relight render` uses
+    textures = texture_set(maps, surface, surface_info=info, metadata=map_meta)
     write_texture_set(out, textures)
     cam = capture.cameras[0]
     if cam.orthographic:
@@ -156,6 +187,10 @@ def run(args) -> int:
                       ("roughness", textures.alpha[..., :1]))
     for name, img in texel_previews:
         write_preview(out / f"{name}.png", img, exposure=0.0, curve="none")
+    if sss is not None:
+        # mean_free_path.png: mfp / the largest mfp of the set (one scale for R, G, B), linear.
+        top = float(np.max(textures.mfp))
+        write_preview(out / "mean_free_path.png", textures.mfp / max(top, 1e-12), exposure=0.0, curve="none")
     views = texture_view(mesh, cam, {"albedo": textures.albedo, "roughness": textures.alpha[..., :1]})
     for name, img in views.items():
         write_exr(out / f"{name}_view.exr", img)
@@ -165,18 +200,181 @@ def run(args) -> int:
     times["write_s"] = time.perf_counter() - t0
 
     report = _report(fitted, surface, Path(args.capture), times)
+    if sss is not None:
+        report["subsurface"] = _subsurface_report(fitted, surface, Path(args.capture), sss,
+                                                  times["subsurface_s"])
     if coverage is not None:
         report["photos"] = coverage.to_dict()
     write_json(out / "report.json", report)
     atomic_write_text(out / "report.md", _report_md(report))
     write_settings(out, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
                    fit_options=kwargs, mesh=info, samples=surface.num_samples,
-                   input="photos" if photos else "texel",
+                   input="photos" if photos else "texel", subsurface=sss,
                    mitsuba_scene=None if scene is None else str(scene))
     if not args.quiet:
+        tail = ""
+        if sss is not None:
+            ss = report["subsurface"]
+            med = ss["mfp_median_mm"]
+            tail = (f"; subsurface ({args.subsurface}) on {ss['subsurface_samples']} texels" +
+                    ("" if med is None else ", median mfp " + "/".join(f"{x:.3g}" for x in med) + " mm (R/G/B)"))
         print(f"wrote {out}/ (texture set, scene.xml, report.md); {report['samples']} texels, "
-              f"{100 * report['failed_fraction']:.1f}% flagged")
+              f"{100 * report['failed_fraction']:.1f}% flagged{tail}")
     return 0
+
+
+def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
+    """CLIError on --subsurface / --regions / --eta that do not go together or
+    with this kind of input (subsurface fitting takes texel-space captures)."""
+    if args.subsurface == "off" and (args.regions is not None or args.eta is not None):
+        raise CLIError(f"{'--regions' if args.regions is not None else '--eta'}: needs --subsurface "
+                       "region|texel|auto")
+    if args.regions is not None and args.subsurface == "texel":
+        raise CLIError("--regions: --subsurface texel fits every texel on its own; regions apply to region|auto")
+    if args.regions is not None and not Path(args.regions).is_file():
+        raise CLIError(f"--regions {args.regions}: no such label map")
+    if args.eta is not None and not (np.isfinite(args.eta) and 1.0 < args.eta <= 3.0):
+        raise CLIError(f"--eta {args.eta}: must be in (1, 3]")
+    if args.subsurface == "off" or kind == "texel":
+        return
+    what = {"diligent": "a DiLiGenT folder (one view of pixels, no surface to scatter over)",
+            "photos": "a photo capture"}[kind]
+    raise CLIError(f"--subsurface {args.subsurface}: {capture_dir} is {what}; subsurface fitting takes "
+                   "texel-space captures only (`relight simulate`'s)")
+
+
+def _read_regions(path: str, surface) -> np.ndarray:
+    """Labels [P] (0..R-1) of ``--regions`` at the surface's samples: a PNG's
+    distinct colours or an EXR's first channel (rounded to integers), at the
+    texel itself when the map is on the texel grid's size, else the nearest
+    texel to the sample's uv."""
+    from ..io import read_png
+
+    p = Path(path)
+    if not p.is_file():
+        raise CLIError(f"--regions {path}: no such label map")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".png":
+            img = np.asarray(read_png(p))
+            img = img[..., None] if img.ndim == 2 else img
+            _, lab = np.unique(img.reshape(-1, img.shape[-1]), axis=0, return_inverse=True)
+            lab = lab.reshape(img.shape[:2])
+        elif suffix == ".exr":
+            from ..io import read_exr
+
+            ch = np.asarray(read_exr(p), np.float64)[..., 0]
+            if not np.all(np.isfinite(ch)):
+                raise CLIError(f"--regions {path}: NaN or Inf labels")
+            lab = np.rint(ch).astype(np.int64)
+        else:
+            raise CLIError(f"--regions {path}: a label map is a .png or an .exr")
+    except ValueError as err:
+        raise CLIError(f"--regions {path}: {err}") from None
+    H, W = surface.resolution
+    if lab.shape == (H, W):
+        at = lab.reshape(-1)[np.asarray(surface.texel_index)]
+    else:
+        uv = np.asarray(surface.uv, np.float64)
+        h, w = lab.shape
+        x = np.clip(np.floor(uv[:, 0] * w), 0, w - 1).astype(int)
+        y = np.clip(np.floor((1 - uv[:, 1]) * h), 0, h - 1).astype(int)
+        at = lab[y, x]
+    # Renumber to 0..R-1 over the fitted samples: fit_subsurface takes contiguous labels.
+    return np.unique(at, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
+def _subsurface_md(ss: dict) -> list[str]:
+    fmt = lambda v: "-" if v is None else " / ".join(f"{x:.3g}" for x in v)  # noqa: E731
+    regions = "" if ss["regions"] is None else f", {ss['regions']['count']} regions of {ss['regions']['file']}"
+    lines = ["## Subsurface scattering", "",
+             f"Mode {ss['mode']}{regions}, eta {ss['eta']:g} ({ss['eta_from']}): {ss['subsurface_samples']} of "
+             f"{ss['samples']} texels on the subsurface rung (the others keep the BRDF's local Lambert term); "
+             f"{ss['seconds']:.2f} s.", "",
+             "| mean free path (mm) | R / G / B |", "| --- | --- |",
+             f"| median over subsurface texels | {fmt(ss['mfp_median_mm'])} |"]
+    if "identified_fraction" in ss:
+        lines.append(f"| identified fraction (1-sigma of ln mfp < {ss['identified_sigma']:g}) | "
+                     f"{fmt(ss['identified_fraction'])} |")
+    if "against_truth" in ss:
+        a = ss["against_truth"]
+        lines += [f"| simulated truth, median | {fmt(a['truth_mfp_median_mm'])} |",
+                  f"| relative error vs truth, median | {fmt(a['mfp_rel_error_median'])} |"]
+    lines.append("")
+    if "rung_counts" in ss:
+        c = ss["rung_counts"]
+        lines += [f"Texels per rung: none {c['none']}, region {c['region']}, texel {c['texel']}.", ""]
+    if "against_truth" in ss:
+        lines += [f"Subsurface / local choice agrees with the truth on "
+                  f"{100 * ss['against_truth']['model_agreement']:.1f}% of the texels.", ""]
+    return lines
+
+
+def _fit_subsurface(args, capture, surface, fitted, metadata: dict):
+    """``relight.fit_subsurface`` with ``--subsurface``'s mode (``per=``; the
+    region mode, fit_subsurface's default, passes none), ``--regions`` and eta
+    (``--eta``, else the capture's metadata.subsurface.eta, else 1.4). Returns
+    (the new Fit, the settings dict recorded in maps.json and the report)."""
+    import relight
+
+    recorded = (metadata.get("subsurface") or {}).get("eta")
+    eta = float(args.eta if args.eta is not None else recorded if recorded is not None else DEFAULT_ETA)
+    kw = {"eta": eta}
+    if args.subsurface != "region":
+        if "per" not in inspect.signature(relight.fit_subsurface).parameters:
+            raise CLIError(f"--subsurface {args.subsurface}: this version of relight.fit_subsurface fits one mean "
+                           "free path per region only (use --subsurface region)")
+        kw["per"] = args.subsurface
+    regions = None
+    if args.regions is not None:
+        regions = _read_regions(args.regions, surface)
+        kw["regions"] = regions
+    with bar(None, "fit subsurface", args.quiet) as b:
+        g = relight.fit_subsurface(capture, surface, fitted, progress=b, **kw)
+    sss = {"mode": args.subsurface, "eta": eta,
+           "eta_from": "--eta" if args.eta is not None else "capture" if recorded is not None else "default",
+           "regions": None if regions is None else {"file": str(Path(args.regions).resolve()),
+                                                    "count": int(regions.max()) + 1}}
+    return g, sss
+
+
+def _subsurface_report(fitted, surface, capture_dir: Path, sss: dict, seconds: float) -> dict:
+    """report.json's ``subsurface``: texels switched to the subsurface rung,
+    the per-channel median mean free path over them (mm), the ladder's rung
+    counts and the identified fraction (where the fit reports them), and,
+    for a simulated capture, the median relative error against truth/."""
+    model = np.asarray(fitted.model)
+    on = model == SUBSURFACE
+    mfp = np.asarray(fitted.mfp, np.float64) if fitted.mfp is not None else np.zeros((len(model), 3))
+    r = {**sss, "subsurface_samples": int(on.sum()), "samples": int(len(model)),
+         "mfp_median_mm": np.median(mfp[on], axis=0).tolist() if on.any() else None,
+         "seconds": round(seconds, 3)}
+    rung = getattr(fitted, "mfp_rung", None)
+    if rung is not None:
+        counts = np.bincount(np.asarray(rung).reshape(-1), minlength=3)
+        r["rung_counts"] = {"none": int(counts[0]), "region": int(counts[1]), "texel": int(counts[2])}
+    ident = getattr(fitted, "mfp_identified", None)
+    if ident is not None:
+        ident = np.asarray(ident, bool)
+        # Over the subsurface texels, per channel: the 1-sigma of ln mfp below Fit.IDENTIFIED_SIGMA.
+        r["identified_fraction"] = ident[on].mean(axis=0).tolist() if on.any() else None
+        r["identified_sigma"] = float(getattr(type(fitted), "IDENTIFIED_SIGMA", float("nan")))
+    truth_dir = capture_dir / "truth"
+    if is_map_set(truth_dir):
+        truth, _ = read_maps(truth_dir)
+        t = truth.maps(surface)
+        t_on = np.asarray(t.model) == SUBSURFACE
+        t_mfp = np.asarray(t.mfp, np.float64)
+        both = on & t_on
+        r["against_truth"] = {
+            "truth_subsurface_samples": int(t_on.sum()),
+            "truth_mfp_median_mm": np.median(t_mfp[t_on], axis=0).tolist() if t_on.any() else None,
+            # Per channel, over texels subsurface in both.
+            "mfp_rel_error_median": (np.median(np.abs(mfp[both] - t_mfp[both]) / t_mfp[both], axis=0).tolist()
+                                     if both.any() else None),
+            "model_agreement": float(np.mean(on == t_on)),
+        }
+    return r
 
 
 def _angular_error_deg(n: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -358,6 +556,8 @@ def _report_md(r: dict) -> str:
                       f"| relight fit | {e['mean']:.2f} | {e['median']:.2f} |",
                       f"| Lambertian least squares (baseline) | {e['lambert_ls_baseline_mean']:.2f} | "
                       f"{e['lambert_ls_baseline_median']:.2f} |", ""]
+    if "subsurface" in r:
+        lines += _subsurface_md(r["subsurface"])
     if "model_counts" in r:
         lines += ["Texels per model: " + ", ".join(f"{k} {v}" for k, v in r["model_counts"].items() if v) + ".", ""]
     lines += ["| stage | seconds |", "| --- | --- |",

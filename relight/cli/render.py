@@ -2,7 +2,13 @@
 2000), a camera-space photo capture (image-based, each camera's own view;
 docs/capture_layout.md) or a fitted map set (model-based,
 ``relight.render.render_view``) under an environment map, from a camera,
-optionally as a turntable of rotations."""
+optionally as a turntable of rotations.
+
+A map set whose model map has subsurface texels (``relight fit
+--subsurface``, or a simulated capture's truth/) is rendered with the
+subsurface term (``relight.render``: Jensen et al. 2001 eq. 5 through the
+diffusion operator on the map set's texels), with the eta the set records
+(maps.json metadata.subsurface.eta; 1.4 if none)."""
 
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import numpy as np
 import stage
 
 from ..io import write_exr
+from ..materials._maps import SUBSURFACE
 from ..render._methods import METHODS
 from ._common import (
     MIN_IMAGE_SIZE,
@@ -111,10 +118,11 @@ def run(args) -> int:
     env = load_envmap(envmap)
     angles = _angles(args.rotate, args.frames)
     t0 = time.perf_counter()
+    subsurface = None
     if kind == "capture":
         frames, camera, method = _image_based(src, env, angles, args)
     else:
-        frames, camera, method = _model_based(src, env, angles, args)
+        frames, camera, method, subsurface = _model_based(src, env, angles, args)
     seconds = time.perf_counter() - t0
     out = ensure_out(args.out)
     # One exposure for the whole turntable, so frames are comparable.
@@ -125,10 +133,12 @@ def run(args) -> int:
         write_preview(out / f"{name}.png", img, exposure=exposure)
     write_settings(out, "render", args, input_kind=kind, envmap=str(envmap), method=method,
                    rotations_deg=angles.tolist(), camera=stage.camera_to_dict(camera),
-                   preview_exposure_stops=exposure, seconds=round(seconds, 3),
+                   preview_exposure_stops=exposure, seconds=round(seconds, 3), subsurface=subsurface,
                    outputs=[f"{n}.exr" for n in names])
     if not args.quiet:
-        print(f"wrote {out}/ ({len(frames)} frame(s), {kind}, method {method})")
+        tail = "" if subsurface is None else (f", subsurface on {subsurface['samples']} texels "
+                                              f"(eta {subsurface['eta']:g})")
+        print(f"wrote {out}/ ({len(frames)} frame(s), {kind}, method {method}{tail})")
     return 0
 
 
@@ -168,6 +178,9 @@ def _model_based(src: Path, env, angles, args):
     textures, maps, surface, mesh, recorded_cams, recorded_rig = load_texel_maps(src)
     camera = parse_cameras(args.camera, mesh, args.image_size, default=recorded_cams[:1] or None)[0]
     settings = {}
+    subsurface = _subsurface_settings(src, textures, maps)
+    if subsurface is not None:
+        settings["eta"] = subsurface["eta"]
     rig_desc = None
     if args.method == "rig":
         if args.rig is not None:
@@ -185,7 +198,30 @@ def _model_based(src: Path, env, angles, args):
                               progress=None if args.quiet else b, rotation=rot, **settings)
             frames.append(np.asarray(img, np.float32))
             b.update(1)
-    return frames, camera, args.method + ("" if rig_desc is None else f" ({rig_desc})")
+    return frames, camera, args.method + ("" if rig_desc is None else f" ({rig_desc})"), subsurface
+
+
+# The subsurface Fresnel transmittances' relative index when a map set records none (relight.render's default).
+DEFAULT_ETA = 1.4
+
+
+def _subsurface_settings(src: Path, textures, maps) -> dict | None:
+    """None when no covered texel is on the subsurface rung; else the number of
+    subsurface texels, their median mean free path (mm, R/G/B) and eta (from
+    maps.json metadata.subsurface.eta, else 1.4)."""
+    on = np.asarray(maps.model) == SUBSURFACE
+    if not on.any():
+        return None
+    recorded = (textures.info.get("metadata", {}).get("subsurface") or {}).get("eta")
+    try:
+        eta = DEFAULT_ETA if recorded is None else float(recorded)
+    except (TypeError, ValueError):
+        raise CLIError(f"{src / 'maps.json'}: metadata.subsurface.eta must be a number, got {recorded!r}") from None
+    if not (np.isfinite(eta) and 1.0 < eta <= 3.0):
+        raise CLIError(f"{src / 'maps.json'}: metadata.subsurface.eta must be in (1, 3], got {eta!r}")
+    mfp = np.median(np.asarray(maps.mfp, np.float64)[on], axis=0)
+    return {"samples": int(on.sum()), "eta": eta, "eta_from": "maps.json" if recorded is not None else "default",
+            "mfp_median_mm": mfp.tolist()}
 
 
 def _run_photos(src: Path, args) -> int:
