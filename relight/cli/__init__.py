@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import convert as _cli_convert
 from . import demo as _cli_demo
 from . import fit as _cli_fit
 from . import info as _cli_info
@@ -27,7 +28,7 @@ from ._common import CLIError
 
 # The commands in the order ``relight --help`` lists them; each module has
 # ``add_parser(subparsers)`` and ``run(args)`` and imports no other command.
-COMMANDS = (_cli_simulate, _cli_fit, _cli_render, _cli_demo, _cli_info)
+COMMANDS = (_cli_simulate, _cli_fit, _cli_render, _cli_convert, _cli_demo, _cli_info)
 
 
 def build_parser() -> argparse.ArgumentParser:

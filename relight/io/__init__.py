@@ -44,6 +44,15 @@ from ._photos import read_photo_capture as read_photo_capture
 from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
+from ._store import CaptureStore as CaptureStore
+from ._store import CaptureStoreError as CaptureStoreError
+from ._store import CaptureStoreWriter as CaptureStoreWriter
+from ._store import StoreChangedError as StoreChangedError
+from ._store import capture_folder_to_store as capture_folder_to_store
+from ._store import is_capture_store as is_capture_store
+from ._store import open_capture_store as open_capture_store
+from ._store import store_to_capture_folder as store_to_capture_folder
+from ._store import write_capture_store as write_capture_store
 from ._texel import MESH_UNITS as MESH_UNITS
 from ._texel import TexelCapture as TexelCapture
 from ._texel import TexelMaps as TexelMaps
@@ -64,6 +73,15 @@ from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
 
 __all__ = [
+    "CaptureStore",
+    "CaptureStoreError",
+    "CaptureStoreWriter",
+    "StoreChangedError",
+    "capture_folder_to_store",
+    "is_capture_store",
+    "open_capture_store",
+    "store_to_capture_folder",
+    "write_capture_store",
     "CaptureData",
     "CaptureReader",
     "DiligentData",

@@ -26,6 +26,7 @@ import stage
 from ..materials._maps import MaterialMaps
 from ._capture import open_capture
 from ._errors import ImageFormatError
+from ._store import is_capture_store, open_capture_store
 from ._texture_set import TextureSet, read_maps
 
 __all__ = ["TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_size_warning", "mesh_spec",
@@ -150,14 +151,19 @@ def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
     schema those have had). ``progress(phase, done, total)`` (``stage.Progress``)
     counts the light images read, phase "read capture".
 
+    ``folder`` may also be a capture store (``relight.io.open_capture_store``:
+    a ``.zarr`` folder, read one sample chunk at a time, progress counting
+    sample chunks).
+
     Raises FileNotFoundError or ImageFormatError / ValueError naming the file
     and the problem.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such capture folder")
-    reader = open_capture(folder)
-    where = str(folder / "capture.json")
+    store = not (folder / "capture.json").exists() and is_capture_store(folder)
+    reader = open_capture_store(folder) if store else open_capture(folder)
+    where = str(reader.manifest_path if store else folder / "capture.json")
     info = reader.metadata.get("surface")
     if reader.metadata.get("space") != "texel" or not isinstance(info, Mapping):
         raise ImageFormatError(f"{where}: not a texel-space capture (metadata.space = 'texel' and metadata.surface, "
@@ -169,14 +175,17 @@ def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
         raise ImageFormatError(f"{where}: images are {reader.sample_shape} but the texel grid is {full.resolution}")
     idx = np.asarray(full.texel_index)
     V, L = reader.n_views, reader.n_lights
-    rad = np.zeros((V, L, len(idx), reader.n_channels), np.float32)
-    valid = np.zeros((V, L, len(idx)), bool)
-    bar = stage.Phase(progress, "read capture", V * L)
-    for v in range(V):
-        for light, r, m in reader.iter_lights(v):
-            rad[v, light] = r[idx]
-            valid[v, light] = True if m is None else m[idx]
-            bar.advance(1)
+    if store:
+        rad, valid = reader.gather_samples(idx, progress=progress)
+    else:
+        rad = np.zeros((V, L, len(idx), reader.n_channels), np.float32)
+        valid = np.zeros((V, L, len(idx)), bool)
+        bar = stage.Phase(progress, "read capture", V * L)
+        for v in range(V):
+            for light, r, m in reader.iter_lights(v):
+                rad[v, light] = r[idx]
+                valid[v, light] = True if m is None else m[idx]
+                bar.advance(1)
     keep = np.nonzero(valid.any(axis=(0, 1)))[0]
     if len(keep) == 0:
         raise ImageFormatError(f"{folder}: no valid observation on any texel of the mesh")

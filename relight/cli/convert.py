@@ -1,0 +1,62 @@
+"""``relight convert SRC DST``: a capture folder to a capture store (Zarr v3,
+``DST`` ending in ``.zarr``) or a capture store back to a capture folder
+(docs/relight_io.md, "Capture store")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._common import CLIError, bar, finish_parser
+
+_SUFFIX = ".zarr"
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("convert", help="capture folder <-> capture store (.zarr, chunked Zarr v3)",
+                       description="Convert a capture folder (one EXR per view and light) to a chunked, compressed "
+                                   "Zarr v3 capture store (DST ending in .zarr), or a store back to a folder. The "
+                                   "output is written under a temporary name and renamed into place.")
+    p.add_argument("src", help="a capture folder (capture.json) or a capture store (.zarr)")
+    p.add_argument("dst", help="the store to write (.zarr) from a folder, or the folder to write from a store")
+    finish_parser(p, run)
+
+
+def run(args) -> int:
+    from ..io import (
+        capture_folder_to_store,
+        is_capture_store,
+        is_photo_capture,
+        open_capture_store,
+        store_to_capture_folder,
+    )
+
+    src, dst = Path(args.src), Path(args.dst)
+    if not src.exists():
+        raise CLIError(f"{src}: no such capture folder or store")
+    if src.resolve() == dst.resolve():
+        raise CLIError(f"{dst}: the destination is the source")
+    if (src / "capture.json").is_file():
+        if is_photo_capture(src):
+            raise CLIError(f"{src}: a photo capture (capture_layout.md); convert takes relight capture folders "
+                           "(`relight simulate`'s) and capture stores")
+        if dst.suffix != _SUFFIX:
+            raise CLIError(f"{dst}: a capture folder converts to a store, whose name must end in {_SUFFIX}")
+        with bar(None, "convert", args.quiet) as b:
+            capture_folder_to_store(src, dst, progress=b)
+        what = "store"
+    elif is_capture_store(src):
+        if dst.suffix == _SUFFIX:
+            raise CLIError(f"{dst}: a store converts to a capture folder, whose name must not end in {_SUFFIX}")
+        with bar(None, "convert", args.quiet) as b:
+            store_to_capture_folder(src, dst, progress=b)
+        what = "capture folder"
+    else:
+        raise CLIError(f"{src}: neither a capture folder (capture.json) nor a capture store (.zarr with "
+                       "relight-store.json)")
+    if not args.quiet:
+        store = open_capture_store(dst if what == "store" else src)
+        V, L, P, C = store.shape
+        on_disk = sum(f.stat().st_size for f in store.path.rglob("*") if f.is_file())
+        print(f"wrote {what} {dst}: {V} view(s) x {L} lights x {P} samples x {C} channels, {store.dtype.name}; "
+              f"store {on_disk / 2**20:.1f} MiB ({store.nbytes / max(on_disk, 1):.2f}x compression)")
+    return 0

@@ -1,0 +1,709 @@
+"""Capture stores: an OLAT capture as one chunked, compressed Zarr v3 group on
+disk, for captures larger than memory (docs/relight_io.md, "Capture store").
+
+Layout (format ``relight-capture-store``, version 1)::
+
+    CAPTURE.zarr/zarr.json            the Zarr v3 group (attributes: relight.format, relight.generation)
+    CAPTURE.zarr/radiance/            [V, L, P, C] float32 or float16, chunks (1, Lc, Pc, C)
+    CAPTURE.zarr/mask/                [V, L, P] bool, chunks (1, Lc, Pc)
+    CAPTURE.zarr/rig.json             as a capture folder's rig.json
+    CAPTURE.zarr/cameras.json         as a capture folder's cameras.json
+    CAPTURE.zarr/relight-store.json   the manifest, written last: the completion marker
+
+The manifest records the shape, dtype, channel names, sample_shape [H, W],
+``half`` and ``has_valid`` (a capture folder's capture.json fields), the
+capture's ``metadata`` (carried over exactly: exposure, noise, the texel
+surface of a texel capture), the paths of the two arrays and two JSON files
+(each must stay inside the store) and a random ``generation`` id.
+
+Chunking: the consumer is the fitter, which takes every view and light of a
+block of samples (``iter_sample_chunks``), so a chunk is one view, ``Lc`` lights
+and ``Pc`` contiguous samples, whole channels: a block of Pc samples is
+V * ceil(L / Lc) whole-chunk reads and nothing outside it. Pc makes a chunk
+about ``TARGET_CHUNK_BYTES`` (2 MiB, uncompressed): big enough that the codec
+and the per-chunk overhead of Zarr (a file and an async task each) are small
+against the data, small enough that a handful of chunks in flight stays cheap.
+``Lc = 8`` (``LIGHT_CHUNK``) is what the writers hold while a chunk fills:
+one view's Lc images when the input comes image by image (a capture folder),
+and a light block of ``stage.simulate_chunks`` (64 lights) fills 8 chunks at once.
+
+Compression: Blosc (bundled with numcodecs, which zarr requires) with zstd at
+level 3 and byte shuffle for the radiance (the float's exponent bytes group
+together) and bit shuffle for the mask (8 mask values per byte before zstd);
+Blosc splits each chunk into blocks across threads, so it is fast both ways.
+
+Atomicity: a store is built in a hidden temporary sibling
+(``.CAPTURE.zarr.<random>.tmp``), the manifest is written last, and the folder
+is renamed into place; an existing store at the target is moved aside first
+and deleted after (a path that is not a store is never replaced). A reader
+refuses a folder without the manifest, and checks the generation id before
+and after every read, so a store replaced while open raises
+``StoreChangedError`` instead of returning a mix of old and new chunks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import secrets
+import shutil
+import weakref
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+import stage
+
+from ._capture import _FILES as _FOLDER_FILES
+from ._capture import _FORMAT as _FOLDER_FORMAT
+from ._capture import _VERSION as _FOLDER_VERSION
+from ._capture import _atomic_folder, _rig_light_count, open_capture
+from ._errors import ImageFormatError, check_radiance
+from ._exr import write_exr_channels
+from ._json import jsonable, read_json, write_json
+
+__all__ = ["CaptureStore", "CaptureStoreError", "CaptureStoreWriter", "StoreChangedError", "capture_folder_to_store",
+           "is_capture_store", "open_capture_store", "store_to_capture_folder", "write_capture_store"]
+
+FORMAT = "relight-capture-store"
+VERSION = 1
+MARKER = "relight-store.json"
+# About 2 MiB of uncompressed radiance per chunk (see the module docstring).
+TARGET_CHUNK_BYTES = 2 << 20
+# Lights per chunk: what a writer holds while chunks fill (Lc images of a view for image-by-image input).
+LIGHT_CHUNK = 8
+# zstd level 3: zstd's own default, most of the ratio of the higher levels at several times their speed.
+_CLEVEL = 3
+_DTYPES = {"float32": np.float32, "float16": np.float16}
+_ARRAYS = {"radiance": "radiance", "mask": "mask"}
+_FILES = {"rig": "rig.json", "cameras": "cameras.json"}
+
+
+class CaptureStoreError(ImageFormatError):
+    """A capture store that cannot be read or written: no completion marker
+    (an interrupted write, or not a store), a manifest or array that disagrees
+    with itself, or a path in the manifest that leaves the store."""
+
+
+class StoreChangedError(CaptureStoreError):
+    """The store was replaced or removed while a :class:`CaptureStore` had it
+    open; reopen it (the read is refused rather than mixing old and new chunks)."""
+
+
+def default_chunks(shape: Sequence[int], dtype) -> tuple[int, int, int, int]:
+    """The chunk shape ``(1, Lc, Pc, C)`` of the module docstring for a
+    capture of ``shape`` ``(V, L, P, C)`` and radiance ``dtype``: Lc =
+    min(L, LIGHT_CHUNK), Pc the power of two that makes a chunk closest
+    below TARGET_CHUNK_BYTES (at most P)."""
+    _, n_l, n_p, n_c = (int(s) for s in shape)
+    lc = min(n_l, LIGHT_CHUNK)
+    per_sample = lc * n_c * np.dtype(dtype).itemsize
+    pc = 1 << max(0, int(math.floor(math.log2(max(1, TARGET_CHUNK_BYTES // per_sample)))))
+    return 1, lc, min(n_p, pc), n_c
+
+
+def is_capture_store(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is meant as a capture store: a folder holding the
+    manifest or a Zarr group (``zarr.json``), or a ``.zarr`` folder. (An
+    incomplete one is refused by :func:`open_capture_store`, naming why.)"""
+    p = Path(path)
+    return p.is_dir() and ((p / MARKER).is_file() or (p / "zarr.json").is_file() or p.suffix == ".zarr")
+
+
+def _inside(root: Path, rel, where: str, field: str) -> Path:
+    """``root / rel`` if that stays inside ``root`` (symlinks resolved), else CaptureStoreError."""
+    if not isinstance(rel, str) or not rel or Path(rel).is_absolute():
+        raise CaptureStoreError(f"{where}: field '{field}' must be a relative path inside the store, got {rel!r}")
+    target = (root / rel).resolve()
+    if not target.is_relative_to(root.resolve()):
+        raise CaptureStoreError(f"{where}: field '{field}' = {rel!r} points outside the store {root}")
+    return target
+
+
+def _check_target(path: Path) -> Path:
+    """The parent must exist; an existing ``path`` must be a store (it is replaced)."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"{path}: cannot write, folder {parent} does not exist")
+    if (path.exists() or path.is_symlink()) and not (path.is_dir() and (path / MARKER).is_file()):
+        raise FileExistsError(f"{path}: exists and is not a capture store; refusing to replace it")
+    return parent
+
+
+def _swap_in(tmp: Path, path: Path) -> None:
+    """Rename the finished ``tmp`` to ``path``; an old store there is moved aside
+    first and deleted after, so ``path`` holds the old store, then nothing for
+    a moment (readers see no store, not a mixed one), then the new store."""
+    _check_target(path)
+    if path.exists():
+        old = path.with_name(f".{path.name}.{secrets.token_hex(6)}.old")
+        os.replace(path, old)
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            os.replace(old, path)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, path)
+
+
+def _codecs(kind: str):
+    from zarr.codecs import BloscCodec
+
+    return BloscCodec(cname="zstd", clevel=_CLEVEL, shuffle="bitshuffle" if kind == "mask" else "shuffle")
+
+
+def _rig_doc(rig) -> dict:
+    return stage.rig_to_dict(rig) if isinstance(rig, stage.Rig) else dict(rig)
+
+
+def _camera_docs(cameras, n_views: int) -> list:
+    if cameras is None:
+        return [{"name": f"view{v}"} for v in range(n_views)]
+    return [stage.camera_to_dict(c, f"cam{i:03d}") if isinstance(c, stage.Camera) else c
+            for i, c in enumerate(cameras)]
+
+
+def _span(sel, n: int, what: str) -> tuple[int, int]:
+    """(start, stop) of a step-1 slice or an int along an axis of length ``n``."""
+    if isinstance(sel, (int, np.integer)):
+        i = int(sel)
+        if not 0 <= i < n:
+            raise ValueError(f"{what} {i} out of range [0, {n})")
+        return i, i + 1
+    if not isinstance(sel, slice) or sel.step not in (None, 1):
+        raise ValueError(f"{what} must be an int or a slice with step 1, got {sel!r}")
+    start, stop, _ = sel.indices(n)
+    if stop <= start:
+        raise ValueError(f"{what} {sel!r} selects nothing of {n}")
+    return start, stop
+
+
+class CaptureStoreWriter:
+    """Write a capture store chunk by chunk (a context manager).
+
+    ``write(view, light_slice, sample_slice, radiance [Lc, Pc, C], mask [Lc, Pc])``
+    takes the blocks ``stage.simulate_chunks`` yields (or one image at a time,
+    ``radiance [1, P, C]``), in any order and of any size; every element must
+    be written exactly once. Blocks are gathered into whole chunks in memory
+    and each chunk is written once it is complete, so nothing is read back and
+    memory holds only the chunks being filled. ``close()`` checks that every
+    chunk was written, writes rig.json, cameras.json and the manifest last,
+    and renames the store into place (replacing an existing store); leaving
+    the ``with`` block by an exception (or ``abort()``) deletes the temporary
+    store and leaves the target as it was.
+
+    Args:
+        path: the store folder to create (conventionally ``*.zarr``).
+        shape: ``(V, L, P, C)``.
+        dtype: float32 or float16 radiance.
+        rig: a ``stage.Rig`` (stored as ``stage.rig_to_dict``) or a rig dict
+            (a capture folder's rig.json) with L lights.
+        cameras: V ``stage.Camera`` s or camera dicts (default ``{"name": "view<i>"}``).
+        metadata: JSON-able dict (capture.json's metadata: exposure, noise, surface...).
+        chunks: ``(Vc, Lc, Pc, C)``; default :func:`default_chunks`.
+        sample_shape: ``(H, W)``, ``H * W = P`` (default ``(1, P)``).
+        channels: channel names (default R, G, B for C = 3, Y for C = 1).
+        has_valid: whether the mask is meaningful (a capture folder without
+            a ``valid`` channel stores an all-True mask and says so).
+        progress: ``stage.Progress``, phase "write store", counting chunks.
+
+    Raises ValueError naming the argument on bad shapes or types, FileNotFoundError
+    when the parent folder is missing, FileExistsError when ``path`` exists and
+    is not a store.
+    """
+
+    def __init__(self, path: str | os.PathLike, shape: Sequence[int], dtype=np.float32, rig=None, cameras=None,
+                 metadata: Mapping | None = None, chunks: Sequence[int] | None = None, *,
+                 sample_shape: Sequence[int] | None = None, channels: Sequence[str] | None = None,
+                 has_valid: bool = True, progress: stage.Progress | None = None):
+        import zarr
+
+        self.path = Path(path)
+        shape = tuple(int(s) for s in shape)
+        if len(shape) != 4 or min(shape) < 1:
+            raise ValueError(f"{self.path}: shape must be (V, L, P, C) of positive sizes, got {shape}")
+        self.shape = shape
+        V, L, P, C = shape
+        name = np.dtype(dtype).name
+        if name not in _DTYPES:
+            raise ValueError(f"{self.path}: dtype must be float32 or float16, got {name}")
+        self.dtype = np.dtype(name)
+        if rig is None:
+            raise ValueError(f"{self.path}: rig is required (a stage.Rig or a rig dict)")
+        self._rig = _rig_doc(rig)
+        if _rig_light_count(self._rig, f"{self.path}: rig") != L:
+            raise ValueError(f"{self.path}: rig has {_rig_light_count(self._rig, self.path)} lights but shape has {L}")
+        self._cameras = _camera_docs(cameras, V)
+        if len(self._cameras) != V:
+            raise ValueError(f"{self.path}: {len(self._cameras)} cameras given for {V} views")
+        self._metadata = jsonable(dict(metadata or {}))
+        try:
+            json.dumps(self._metadata, allow_nan=False)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{self.path}: metadata is not JSON-able ({err})") from None
+        hw = tuple(int(s) for s in sample_shape) if sample_shape is not None else (1, P)
+        if len(hw) != 2 or hw[0] * hw[1] != P:
+            raise ValueError(f"{self.path}: sample_shape {hw} does not hold {P} samples")
+        self.sample_shape = hw
+        names = list(channels) if channels is not None else {1: ["Y"], 3: ["R", "G", "B"]}.get(C)
+        if names is None or len(names) != C or "valid" in names:
+            raise ValueError(f"{self.path}: channels must be {C} names (not 'valid'), got {names}")
+        self.channels = names
+        self.has_valid = bool(has_valid)
+        ch = tuple(int(c) for c in chunks) if chunks is not None else default_chunks(shape, self.dtype)
+        if len(ch) != 4 or min(ch) < 1 or ch[3] != C:
+            raise ValueError(f"{self.path}: chunks must be (Vc, Lc, Pc, C={C}) of positive sizes, got {ch}")
+        self.chunks = tuple(min(c, s) for c, s in zip(ch, shape, strict=True))
+        self._grid = tuple(-(-s // c) for s, c in zip(shape[:3], self.chunks[:3], strict=True))
+        self._total = int(np.prod(self._grid))
+        self._done: set[tuple[int, int, int]] = set()
+        self._pending: dict[tuple[int, int, int], list] = {}
+        self._generation = secrets.token_hex(16)
+        self._closed = False
+        parent = _check_target(self.path)
+        self._tmp = parent / f".{self.path.name}.{secrets.token_hex(6)}.tmp"
+        self._tmp.mkdir()  # permissions as a plain mkdir gives them (mkdtemp's are private)
+        # A writer dropped without close() or abort() leaves no temporary folder behind either.
+        self._cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
+        try:
+            root = zarr.open_group(store=str(self._tmp), mode="w", zarr_format=3,
+                                   attributes={"relight": {"format": FORMAT, "version": VERSION,
+                                                           "generation": self._generation}})
+            # write_empty_chunks: every chunk is on disk, so a store missing a chunk file is damaged, not zeros.
+            cfg = {"write_empty_chunks": True}
+            self._radiance = root.create_array(
+                _ARRAYS["radiance"], shape=shape, chunks=self.chunks, dtype=self.dtype.name,
+                compressors=_codecs("radiance"), fill_value=0, config=cfg,
+                dimension_names=("view", "light", "sample", "channel"))
+            self._mask = root.create_array(
+                _ARRAYS["mask"], shape=shape[:3], chunks=self.chunks[:3], dtype="bool",
+                compressors=_codecs("mask"), fill_value=False, config=cfg,
+                dimension_names=("view", "light", "sample"))
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+        self._bar = stage.Phase(progress, "write store", self._total)
+
+    def __enter__(self) -> CaptureStoreWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def _chunk_box(self, key):
+        return tuple(slice(k * c, min((k + 1) * c, s)) for k, c, s in zip(key, self.chunks, self.shape, strict=False))
+
+    def write(self, view, light_slice, sample_slice, radiance, mask=None) -> None:
+        """Store ``radiance`` [nL, nP, C] (or [1, nL, nP, C]) and ``mask`` [nL, nP]
+        (bool; None: all valid) at ``view`` (an int), ``light_slice`` and
+        ``sample_slice`` (ints or step-1 slices). ValueError naming the argument on
+        a wrong shape, NaN / negative radiance, or an element written twice."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        V, L, P, C = self.shape
+        v0, _ = _span(view, V, "view")
+        l0, l1 = _span(light_slice, L, "light_slice")
+        p0, p1 = _span(sample_slice, P, "sample_slice")
+        rad = np.asarray(radiance)
+        if rad.ndim == 4 and rad.shape[0] == 1:
+            rad = rad[0]
+        if rad.shape != (l1 - l0, p1 - p0, C):
+            raise ValueError(f"{self.path}: radiance must be {(l1 - l0, p1 - p0, C)} for lights {l0}:{l1}, "
+                             f"samples {p0}:{p1}, got {rad.shape}")
+        check_radiance(rad, self.path, f"radiance of view {v0} lights {l0}:{l1}")
+        rad = rad.astype(self.dtype, copy=False)
+        if mask is None:
+            msk = np.ones(rad.shape[:2], bool)
+        else:
+            msk = np.asarray(mask)
+            if msk.ndim == 3 and msk.shape[0] == 1:
+                msk = msk[0]
+            if msk.shape != rad.shape[:2]:
+                raise ValueError(f"{self.path}: mask must be {rad.shape[:2]}, got {msk.shape}")
+            msk = msk.astype(bool, copy=False)
+        cv, cl, cp, _ = self.chunks
+        vk = v0 // cv
+        for lk in range(l0 // cl, (l1 - 1) // cl + 1):
+            for pk in range(p0 // cp, (p1 - 1) // cp + 1):
+                key = (vk, lk, pk)
+                box = self._chunk_box(key)
+                if key in self._done:
+                    raise ValueError(f"{self.path}: view {v0} lights {l0}:{l1} samples {p0}:{p1} overlap a chunk "
+                                     "already written")
+                buf = self._pending.get(key)
+                if buf is None:
+                    ext = tuple(b.stop - b.start for b in box)
+                    buf = [np.zeros((*ext, C), self.dtype), np.zeros(ext, bool), np.zeros(ext, bool)]
+                    self._pending[key] = buf
+                # The intersection of the block with this chunk, in chunk and in block coordinates.
+                a0, a1 = max(l0, box[1].start), min(l1, box[1].stop)
+                b0, b1 = max(p0, box[2].start), min(p1, box[2].stop)
+                at = (v0 - box[0].start, slice(a0 - box[1].start, a1 - box[1].start),
+                      slice(b0 - box[2].start, b1 - box[2].start))
+                src = (slice(a0 - l0, a1 - l0), slice(b0 - p0, b1 - p0))
+                if buf[2][at].any():
+                    raise ValueError(f"{self.path}: view {v0} lights {a0}:{a1} samples {b0}:{b1} written twice")
+                buf[0][at] = rad[src]
+                buf[1][at] = msk[src]
+                buf[2][at] = True
+                if buf[2].all():
+                    self._radiance[box] = buf[0]
+                    self._mask[box] = buf[1]
+                    del self._pending[key]
+                    self._done.add(key)
+                    self._bar.advance(1)
+
+    def abort(self) -> None:
+        """Delete the temporary store; the target is left as it was."""
+        self._closed = True
+        self._pending.clear()
+        self._cleanup()
+
+    def close(self) -> Path:
+        """Commit: every chunk written, then rig.json, cameras.json, the manifest
+        (last) and the rename into place. Returns the store's path. An
+        incomplete capture is not committed: ValueError naming what is missing
+        (the temporary store is deleted)."""
+        if self._closed:
+            return self.path
+        try:
+            missing = self._total - len(self._done)
+            if missing:
+                raise ValueError(f"{self.path}: capture incomplete, {missing} of {self._total} chunks not fully "
+                                 f"written ({len(self._pending)} partly); nothing was committed")
+            write_json(self._tmp / _FILES["rig"], self._rig, indent=1)
+            write_json(self._tmp / _FILES["cameras"], self._cameras, indent=1)
+            V, L, P, C = self.shape
+            manifest = {"format": FORMAT, "version": VERSION, "generation": self._generation,
+                        "shape": [V, L, P, C], "dtype": self.dtype.name, "chunks": list(self.chunks),
+                        "sample_shape": list(self.sample_shape), "channels": self.channels,
+                        "half": self.dtype == np.float16, "has_valid": self.has_valid,
+                        "arrays": dict(_ARRAYS), "files": dict(_FILES),
+                        "codec": {"name": "blosc", "cname": "zstd", "clevel": _CLEVEL},
+                        "metadata": self._metadata}
+            write_json(self._tmp / MARKER, manifest, indent=1)
+            _swap_in(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+        self._closed = True
+        self._cleanup.detach()
+        return self.path
+
+
+def write_capture_store(path: str | os.PathLike, capture: stage.Capture, *, metadata: Mapping | None = None,
+                        chunks: Sequence[int] | None = None, progress: stage.Progress | None = None,
+                        sample_shape: Sequence[int] | None = None, channels: Sequence[str] | None = None) -> Path:
+    """Write a ``stage.Capture`` (in memory) as a capture store, atomically, in
+    its radiance dtype (float32 or float16); one view and light chunk at a
+    time, so the only copy beyond the capture is one chunk row. See
+    :class:`CaptureStoreWriter` for the arguments. The capture's sensor is not
+    stored (record it in ``metadata``). Returns the store's path."""
+    V, L, P, C = capture.shape
+    dtype = np.dtype(capture.radiance.dtype)
+    with CaptureStoreWriter(path, (V, L, P, C), dtype, capture.rig, capture.cameras, metadata, chunks,
+                            sample_shape=sample_shape, channels=channels, progress=progress) as w:
+        cl = w.chunks[1]
+        for v in range(V):
+            for l0 in range(0, L, cl):
+                ls = slice(l0, min(l0 + cl, L))
+                w.write(v, ls, slice(None), np.asarray(capture.radiance[v, ls]), np.asarray(capture.mask[v, ls]))
+    return Path(path)
+
+
+def _selector(sel, n: int, what: str, where):
+    """A zarr orthogonal selector for one axis: a slice, or a sorted-as-given int array."""
+    if sel is None:
+        return slice(None)
+    if isinstance(sel, slice):
+        if sel.step is not None and sel.step <= 0:
+            raise ValueError(f"{where}: {what} slice step must be positive, got {sel.step}")
+        return sel
+    idx = np.atleast_1d(np.asarray(sel))
+    if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"{where}: {what} must be None, an int, a slice or a sequence of ints, got {sel!r}")
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise IndexError(f"{where}: {what} {idx.tolist()} out of range [0, {n})")
+    return idx.astype(np.int64)
+
+
+class CaptureStore:
+    """An open capture store (:func:`open_capture_store`): the manifest, rig and
+    cameras in memory; radiance and mask read on demand, chunk by chunk.
+
+    Attributes:
+        path, shape ``(V, L, P, C)``, dtype, chunks, n_views, n_lights,
+        n_samples, n_channels, sample_shape ``(H, W)``, channels, half,
+        has_valid, rig (rig.json's dict), cameras (cameras.json's list),
+        metadata (the capture's metadata), generation.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise FileNotFoundError(f"{self.path}: no such capture store")
+        self.manifest_path = self.path / MARKER
+        where = str(self.manifest_path)
+        if not self.manifest_path.is_file():
+            raise CaptureStoreError(f"{self.path}: no {MARKER}, so not a complete capture store (an interrupted or "
+                                    "unfinished write, or not a relight store)")
+        info = read_json(self.manifest_path, "a capture store's manifest")
+        if not isinstance(info, Mapping) or info.get("format") != FORMAT:
+            fmt = info.get("format") if isinstance(info, Mapping) else None
+            raise CaptureStoreError(f"{where}: not a relight capture store (format {fmt!r})")
+        if info.get("version", 0) > VERSION:
+            raise CaptureStoreError(f"{where}: format version {info.get('version')} is newer than this reader "
+                                    f"({VERSION})")
+        try:
+            shape = tuple(int(s) for s in info["shape"])
+            self.sample_shape = tuple(int(s) for s in info["sample_shape"])
+            self.channels = [str(c) for c in info["channels"]]
+            dtype = _DTYPES[info["dtype"]]
+            self.generation = str(info["generation"])
+            arrays, files = dict(info["arrays"]), dict(info["files"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise CaptureStoreError(f"{where}: missing or bad field ({err!r})") from None
+        if len(shape) != 4 or min(shape) < 1:
+            raise CaptureStoreError(f"{where}: field 'shape' must be [V, L, P, C] of positive sizes, got {list(shape)}")
+        self.shape = shape
+        self.n_views, self.n_lights, self.n_samples, self.n_channels = shape
+        self.dtype = np.dtype(dtype)
+        if len(self.sample_shape) != 2 or self.sample_shape[0] * self.sample_shape[1] != self.n_samples:
+            raise CaptureStoreError(f"{where}: sample_shape {list(self.sample_shape)} does not hold "
+                                    f"{self.n_samples} samples")
+        if len(self.channels) != self.n_channels:
+            raise CaptureStoreError(f"{where}: {len(self.channels)} channel names for {self.n_channels} channels")
+        self.half = bool(info.get("half", self.dtype == np.float16))
+        self.has_valid = bool(info.get("has_valid", True))
+        self.metadata = dict(info.get("metadata") or {})
+        self._open_parts(arrays, files, where)
+        self.chunks = tuple(int(c) for c in self._radiance.chunks)
+
+    def _open_parts(self, arrays: dict, files: dict, where: str) -> None:
+        """Read rig.json and cameras.json and open the two arrays, checking each against the manifest."""
+        import zarr
+
+        shape = self.shape
+        paths = {k: _inside(self.path, arrays.get(k), where, f"arrays.{k}") for k in _ARRAYS}
+        paths |= {k: _inside(self.path, files.get(k), where, f"files.{k}") for k in _FILES}
+        rig_path, cam_path = paths["rig"], paths["cameras"]
+        self.rig = read_json(rig_path, "a capture store needs its rig.json")
+        self._rig_where = str(rig_path)
+        try:
+            n_rig = _rig_light_count(self.rig, rig_path)
+        except ImageFormatError as err:
+            raise CaptureStoreError(str(err)) from None
+        if n_rig != self.n_lights:
+            raise CaptureStoreError(f"{rig_path}: {n_rig} lights in the rig but {where} declares {self.n_lights}")
+        self.cameras = read_json(cam_path, "a capture store needs its cameras.json")
+        self._cam_where = str(cam_path)
+        if not isinstance(self.cameras, list) or len(self.cameras) != self.n_views:
+            n = len(self.cameras) if isinstance(self.cameras, list) else "no list of"
+            raise CaptureStoreError(f"{cam_path}: {n} cameras but {where} declares {self.n_views} views")
+        try:
+            root = zarr.open_group(store=str(self.path), mode="r", zarr_format=3)
+            self._radiance = root[os.path.relpath(paths["radiance"], self.path.resolve())]
+            self._mask = root[os.path.relpath(paths["mask"], self.path.resolve())]
+        except (KeyError, FileNotFoundError, ValueError) as err:
+            raise CaptureStoreError(f"{self.path}: the Zarr group or its arrays cannot be opened ({err!r})") from None
+        attrs = dict(root.attrs).get("relight", {})
+        if not isinstance(attrs, Mapping) or attrs.get("generation") != self.generation:
+            raise CaptureStoreError(f"{self.path}: zarr.json's generation does not match {MARKER}'s: the arrays and "
+                                    "the manifest come from different writes")
+        for name, arr, want, dt in (("radiance", self._radiance, shape, self.dtype),
+                                    ("mask", self._mask, shape[:3], np.dtype(bool))):
+            if tuple(arr.shape) != tuple(want):
+                raise CaptureStoreError(f"{self.path}: array '{name}' has shape {tuple(arr.shape)}, "
+                                        f"{MARKER} declares {tuple(want)}")
+            if np.dtype(arr.dtype) != dt:
+                raise CaptureStoreError(f"{self.path}: array '{name}' is {np.dtype(arr.dtype)}, expected {dt}")
+
+    def __repr__(self) -> str:
+        return f"CaptureStore({str(self.path)!r}, shape={self.shape}, dtype={self.dtype.name}, chunks={self.chunks})"
+
+    def _check_generation(self) -> None:
+        try:
+            info = read_json(self.manifest_path)
+            gen = info.get("generation") if isinstance(info, Mapping) else None
+        except (OSError, ValueError):
+            gen = None
+        if gen != self.generation:
+            raise StoreChangedError(f"{self.path}: the store was replaced or removed while open; reopen it")
+
+    def stage_rig(self) -> stage.Rig:
+        """rig.json as a ``stage.Rig`` (``stage.rig_from_dict``; ValueError naming the file and field)."""
+        return stage.rig_from_dict(self.rig, self._rig_where)
+
+    def stage_cameras(self) -> tuple[stage.Camera, ...]:
+        """cameras.json as ``stage.Camera`` s (``stage.camera_from_dict``, each entry)."""
+        return tuple(stage.camera_from_dict(c, f"{self._cam_where}: camera {i}") for i, c in enumerate(self.cameras))
+
+    @property
+    def nbytes(self) -> int:
+        """Uncompressed size of radiance and mask, bytes."""
+        return int(np.prod(self.shape)) * self.dtype.itemsize + int(np.prod(self.shape[:3]))
+
+    def read(self, views=None, lights=None, samples=None, dtype=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(radiance [V', L', P', C], mask [V', L', P'])`` as NumPy arrays for
+        the selected views, lights and samples (each None = all, an int, a
+        slice or a sequence of ints; the axes are kept). Reads only the chunks
+        the selection touches: memory is the result plus the chunks in flight.
+        ``dtype`` casts the radiance (default: the stored dtype). Raises
+        StoreChangedError if the store was replaced during the read."""
+        sel = (_selector(views, self.n_views, "views", self.path),
+               _selector(lights, self.n_lights, "lights", self.path),
+               _selector(samples, self.n_samples, "samples", self.path))
+        self._check_generation()
+        try:
+            rad = np.asarray(self._radiance.get_orthogonal_selection((*sel, slice(None))))
+            msk = np.asarray(self._mask.get_orthogonal_selection(sel))
+        except Exception:
+            self._check_generation()  # a replaced store can fail to decode: say so, not why
+            raise
+        self._check_generation()
+        if dtype is not None:
+            rad = rad.astype(dtype, copy=False)
+        return rad, msk.astype(bool, copy=False)
+
+    def iter_sample_chunks(self, n: int | None = None, dtype=None
+                           ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
+        """Yield ``(sample slice, radiance [V, L, n', C], mask [V, L, n'])`` over
+        consecutive blocks of ``n`` samples (default: the store's sample chunk;
+        a multiple of it reads each chunk once), covering every sample exactly
+        once (the last block may be shorter). A consumer holds one block."""
+        n = self.chunks[2] if n is None else int(n)
+        if n < 1:
+            raise ValueError(f"{self.path}: n must be a positive sample count, got {n}")
+        for s in range(0, self.n_samples, n):
+            sl = slice(s, min(s + n, self.n_samples))
+            # No local keeps the block: once the consumer drops it, reading the next needs no room for two.
+            yield (sl, *self.read(samples=sl, dtype=dtype))
+
+    def gather_samples(self, index, dtype=np.float32, progress: stage.Progress | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """``(radiance [V, L, len(index), C], mask [V, L, len(index)])`` at the
+        samples ``index`` (ints), read one sample chunk at a time (chunks with
+        none of them are skipped). ``progress`` counts the sample chunks, phase
+        "read capture"."""
+        idx = np.asarray(index, np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_samples):
+            raise IndexError(f"{self.path}: sample index out of range [0, {self.n_samples})")
+        V, L, _, C = self.shape
+        rad = np.zeros((V, L, idx.size, C), dtype)
+        msk = np.zeros((V, L, idx.size), bool)
+        n = self.chunks[2]
+        bar = stage.Phase(progress, "read capture", -(-self.n_samples // n))
+        for s in range(0, self.n_samples, n):
+            e = min(s + n, self.n_samples)
+            here = np.nonzero((idx >= s) & (idx < e))[0]
+            if here.size:
+                r, m = self.read(samples=slice(s, e))
+                rad[:, :, here] = r[:, :, idx[here] - s]
+                msk[:, :, here] = m[:, :, idx[here] - s]
+            bar.advance(1)
+        return rad, msk
+
+    def to_capture(self, max_bytes: int = 8 << 30) -> stage.Capture:
+        """The whole store as a ``stage.Capture`` (stored dtype; no sensor), for
+        stores that fit in memory: ValueError above ``max_bytes`` (uncompressed;
+        stream with :meth:`iter_sample_chunks` instead)."""
+        if self.nbytes > max_bytes:
+            raise ValueError(f"{self.path}: {self.nbytes / 2**30:.2f} GiB uncompressed is over max_bytes "
+                             f"({max_bytes / 2**30:.2f} GiB); read it in chunks with iter_sample_chunks")
+        rad, msk = self.read()
+        return stage.Capture(radiance=jnp.asarray(rad), mask=jnp.asarray(msk), rig=self.stage_rig(),
+                             cameras=self.stage_cameras())
+
+
+def open_capture_store(path: str | os.PathLike) -> CaptureStore:
+    """Open a capture store (reads the manifest, rig and cameras; no pixels).
+
+    Raises FileNotFoundError for a missing folder and CaptureStoreError (an
+    ImageFormatError) naming the path for a folder without the completion
+    marker, a manifest whose shape, dtype or generation disagree with the
+    arrays, rig or cameras, or a manifest path that leaves the store."""
+    return CaptureStore(path)
+
+
+def capture_folder_to_store(folder: str | os.PathLike, store_path: str | os.PathLike, *,
+                            chunks: Sequence[int] | None = None, progress: stage.Progress | None = None) -> Path:
+    """Convert a capture folder (relight.io.write_capture's layout) to a capture
+    store, reading one EXR at a time: memory is the chunks being filled (one
+    view's Lc images with the default chunks), never the capture. The radiance
+    keeps its stored precision (half folders give a float16 store);
+    capture.json's metadata, sample_shape, channels and has_valid, and
+    rig.json / cameras.json are carried over as they are. ``progress``
+    counts images, phase "convert". Returns the store's path.
+
+    Raises as :func:`relight.io.open_capture` (naming the file), and
+    ImageFormatError when capture.json's ``files`` template points outside
+    the folder."""
+    folder = Path(folder)
+    reader = open_capture(folder)
+    V, L, P, C = reader.shape
+    root = folder.resolve()
+    for v in range(V):
+        for light in range(L):
+            if not reader.path(v, light).resolve().is_relative_to(root):
+                raise ImageFormatError(f"{folder / 'capture.json'}: field 'files' ({reader._files!r}) puts "
+                                       f"view {v} light {light} outside the folder: {reader.path(v, light)}")
+    rig = read_json(folder / "rig.json")  # as written: the reader turns lists into arrays
+    first, _ = reader.read_image(0, 0, dtype=None)
+    dtype = np.float16 if reader.half and first.dtype == np.float16 else np.float32
+    bar = stage.Phase(progress, "convert", V * L)
+    with CaptureStoreWriter(store_path, reader.shape, dtype, rig, reader.cameras, reader.metadata, chunks,
+                            sample_shape=reader.sample_shape, channels=reader.channels,
+                            has_valid=reader.has_valid) as w:
+        for v in range(V):
+            for light in range(L):
+                rad, valid = reader.read_image(v, light, dtype=None)
+                if rad.dtype.itemsize > w.dtype.itemsize:
+                    raise ImageFormatError(f"{reader.path(v, light)}: {rad.dtype} radiance in a half capture "
+                                           "(capture.json says half); it would lose precision")
+                w.write(v, light, slice(None), rad[None], None if valid is None else valid[None])
+                bar.advance(1)
+    return Path(store_path)
+
+
+def store_to_capture_folder(store_path: str | os.PathLike, folder: str | os.PathLike, *,
+                            progress: stage.Progress | None = None) -> Path:
+    """Convert a capture store back to a capture folder (the layout
+    relight.io.open_capture reads: one EXR per view and light, rig.json,
+    cameras.json, capture.json with the store's metadata), atomically (the
+    folder is swapped into place; an existing capture folder is replaced).
+    Reads one view and light chunk at a time. ``progress`` counts images,
+    phase "convert". Returns the folder's path."""
+    store = open_capture_store(store_path)
+    folder = Path(folder)
+    V, L, _, _ = store.shape
+    cl = store.chunks[1]
+    bar = stage.Phase(progress, "convert", V * L)
+    with _atomic_folder(folder) as tmp:
+        for v in range(V):
+            for l0 in range(0, L, cl):
+                rad, msk = store.read(views=v, lights=slice(l0, min(l0 + cl, L)))
+                for j in range(rad.shape[1]):
+                    light = l0 + j
+                    path = tmp / _FOLDER_FILES.format(view=v, light=light)
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    chans = {n: rad[0, j, :, i].reshape(store.sample_shape) for i, n in enumerate(store.channels)}
+                    if store.has_valid:
+                        chans["valid"] = msk[0, j].reshape(store.sample_shape).astype(np.float16)
+                    write_exr_channels(path, chans, header={"relight.view": v, "relight.light": light},
+                                       half=store.half)
+                    bar.advance(1)
+        write_json(tmp / "rig.json", store.rig, indent=1)
+        write_json(tmp / "cameras.json", store.cameras, indent=1)
+        write_json(tmp / "capture.json",
+                   {"format": _FOLDER_FORMAT, "version": _FOLDER_VERSION, "n_views": V, "n_lights": L,
+                    "sample_shape": list(store.sample_shape), "channels": store.channels, "half": store.half,
+                    "has_valid": store.has_valid, "files": _FOLDER_FILES, "metadata": store.metadata}, indent=1)
+    return folder
