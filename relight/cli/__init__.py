@@ -6,6 +6,7 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``simulate``: a texel-space OLAT capture of a mesh into a capture folder;
 * ``fit``: reflectance maps from a capture folder (texture set + Mitsuba scene);
 * ``render``: relight a capture (image-based) or a map set (model-based);
+* ``convert``: a capture folder to a chunked Zarr v3 capture store, or back;
 * ``demo``: simulate, fit and relight the bundled head in one go;
 * ``info``: versions, devices and bundled data.
 
