@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import os
 import shutil
+import string
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -40,7 +41,7 @@ import numpy as np
 
 import stage
 
-from ._errors import ImageFormatError, check_radiance
+from ._errors import ImageFormatError, check_radiance, path_inside
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
 
@@ -204,6 +205,22 @@ def _load_json(path: Path):
     return read_json(path, "a capture folder needs capture.json, rig.json and cameras.json")
 
 
+def _files_template(template: object, where: str) -> str:
+    """capture.json's ``files``: a format string whose only fields are ``{view}``
+    and ``{light}`` (with format specs), no attribute or index access."""
+    if not isinstance(template, str) or not template:
+        raise ImageFormatError(f"{where}: must be a path template string, got {template!r}")
+    try:
+        fields = [f for _, f, _, _ in string.Formatter().parse(template) if f is not None]
+    except ValueError as err:
+        raise ImageFormatError(f"{where}: {template!r} is not a format string ({err})") from None
+    bad = [f for f in fields if f not in ("view", "light")]
+    if bad or "light" not in fields:
+        raise ImageFormatError(f"{where}: {template!r} may use only {{view}} and {{light}} (and needs {{light}}), "
+                               f"got fields {fields}")
+    return template
+
+
 class CaptureReader:
     """Lazy access to a capture folder: nothing but the JSON files is read until
     asked, so stacks larger than memory can be streamed light by light or in
@@ -235,7 +252,7 @@ class CaptureReader:
         self.has_valid = bool(info.get("has_valid", False))
         self.half = bool(info.get("half", False))
         self.metadata = dict(info.get("metadata", {}))
-        self._files = str(info.get("files", _FILES))
+        self._files = _files_template(info.get("files", _FILES), f"{where}: field 'files'")
         self.n_samples = self.sample_shape[0] * self.sample_shape[1]
         self.n_channels = len(self.channels)
         rig_path = self.folder / "rig.json"
@@ -287,7 +304,10 @@ class CaptureReader:
         return (self.n_views, self.n_lights, self.n_samples, self.n_channels)
 
     def path(self, view: int, light: int) -> Path:
-        return self.folder / self._files.format(view=view, light=light)
+        """The image of ``view`` under ``light`` (inside the folder, checked)."""
+        rel = self._files.format(view=view, light=light)
+        return path_inside(self.folder, rel, f"{self.folder / 'capture.json'}: field 'files'",
+                           what="the capture folder")
 
     def read_image(self, view: int, light: int, samples: slice | None = None, dtype=np.float32):
         """One view under one light: ``([P', C] radiance, [P'] valid or None)``,

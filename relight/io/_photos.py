@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Iterator, Mapping, Sequence
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 
@@ -34,7 +34,7 @@ import stage
 
 from ..image._tonemap import srgb_decode, srgb_encode, to_uint16
 from ._capture import _atomic_folder
-from ._errors import ImageFormatError, check_radiance
+from ._errors import ImageFormatError, check_radiance, path_inside
 from ._exr import read_exr, write_exr
 from ._json import read_json, write_json
 from ._png import read_png, write_png
@@ -72,18 +72,7 @@ def _err(where, msg) -> ImageFormatError:
 
 
 def _inside(folder: Path, rel: object, where: str) -> Path:
-    """``folder / rel``, refusing absolute paths, ``..`` and links leading out."""
-    if not isinstance(rel, str) or not rel:
-        raise _err(where, f"must be a relative path inside the capture folder, got {rel!r}")
-    pure = PurePosixPath(rel.replace("\\", "/"))
-    if pure.is_absolute() or Path(rel).is_absolute() or ".." in pure.parts or (pure.parts and ":" in pure.parts[0]):
-        raise _err(where, f"path {rel!r} leaves the capture folder (absolute paths and '..' are refused)")
-    path = folder / Path(*pure.parts)
-    try:
-        path.resolve().relative_to(folder.resolve())
-    except ValueError:
-        raise _err(where, f"path {rel!r} leads outside the capture folder (through a link)") from None
-    return path
+    return path_inside(folder, rel, where, what="the capture folder")
 
 
 def _positive(value, n: int, where: str) -> np.ndarray:

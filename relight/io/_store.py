@@ -61,7 +61,7 @@ from ._capture import _FILES as _FOLDER_FILES
 from ._capture import _FORMAT as _FOLDER_FORMAT
 from ._capture import _VERSION as _FOLDER_VERSION
 from ._capture import _atomic_folder, _rig_light_count, open_capture
-from ._errors import ImageFormatError, check_radiance
+from ._errors import ImageFormatError, check_radiance, path_inside
 from ._exr import write_exr_channels
 from ._json import jsonable, read_json, write_json
 
@@ -115,12 +115,8 @@ def is_capture_store(path: str | os.PathLike) -> bool:
 
 def _inside(root: Path, rel, where: str, field: str) -> Path:
     """``root / rel`` if that stays inside ``root`` (symlinks resolved), else CaptureStoreError."""
-    if not isinstance(rel, str) or not rel or Path(rel).is_absolute():
-        raise CaptureStoreError(f"{where}: field '{field}' must be a relative path inside the store, got {rel!r}")
-    target = (root / rel).resolve()
-    if not target.is_relative_to(root.resolve()):
-        raise CaptureStoreError(f"{where}: field '{field}' = {rel!r} points outside the store {root}")
-    return target
+    return path_inside(root, rel, f"{where}: field '{field}'", what=f"the store {root}",
+                       error=CaptureStoreError).resolve()
 
 
 def _check_target(path: Path) -> Path:
@@ -649,12 +645,7 @@ def capture_folder_to_store(folder: str | os.PathLike, store_path: str | os.Path
     folder = Path(folder)
     reader = open_capture(folder)
     V, L, P, C = reader.shape
-    root = folder.resolve()
-    for v in range(V):
-        for light in range(L):
-            if not reader.path(v, light).resolve().is_relative_to(root):
-                raise ImageFormatError(f"{folder / 'capture.json'}: field 'files' ({reader._files!r}) puts "
-                                       f"view {v} light {light} outside the folder: {reader.path(v, light)}")
+    # open_capture has checked that every image path stays inside the folder.
     rig = read_json(folder / "rig.json")  # as written: the reader turns lists into arrays
     first, _ = reader.read_image(0, 0, dtype=None)
     dtype = np.float16 if reader.half and first.dtype == np.float16 else np.float32

@@ -134,6 +134,34 @@ def test_capture_errors_name_the_file(tmp_path, capture):
         write_capture(tmp_path / "x", radiance[:, :3], rig, cameras)
 
 
+def test_capture_image_paths_stay_inside_the_folder(tmp_path, capture):
+    """capture.json's ``files`` template is read from the user's file: a template
+    leading out of the folder (``..``, absolute, a link), using other fields
+    than {view} / {light}, or attribute access, is refused naming the field."""
+    radiance, valid, rig, cameras = capture
+    folder = tmp_path / "cap"
+    write_capture(folder, radiance, rig, cameras, valid=valid)
+    outside = tmp_path / "outside"
+    shutil.copytree(folder / "views", outside)
+    for k, files in enumerate(["../outside/v{view:03d}/l{light:03d}.exr",
+                               str(outside) + "/v{view:03d}/l{light:03d}.exr", "views/v{view.real}/l{light:03d}.exr",
+                               "views/{x}/l{light:03d}.exr", "views/v000.exr", "views/v{view:03d}/l{light"]):
+        f = tmp_path / f"bad{k}"
+        shutil.copytree(folder, f)
+        info = json.loads((f / "capture.json").read_text())
+        info["files"] = files
+        (f / "capture.json").write_text(json.dumps(info))
+        with pytest.raises(ImageFormatError, match=r"capture\.json: field 'files'"):
+            open_capture(f)
+    # A link inside the folder that resolves outside it.
+    f = tmp_path / "linked"
+    shutil.copytree(folder, f)
+    shutil.rmtree(f / "views")
+    os.symlink(outside, f / "views")
+    with pytest.raises(ImageFormatError, match="through a link"):
+        open_capture(f)
+
+
 def test_diligent_ball_reproduces_the_benchmark_baseline(shared_data):
     """The README's Lambertian least-squares recipe gives 4.10 deg mean angular
     error on ballPNG; it does only if the 16 bits, the intensities, the mask
