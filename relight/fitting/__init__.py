@@ -1,7 +1,7 @@
 """Fitting per-sample reflectance to captures with Optimistix: the driver
 (chunked, compiled once), the photometric-stereo start, the per-rung model and
-its structured Jacobian, the model ladder and the subsurface fit. See
-docs/fit.md."""
+its structured Jacobian, the model ladder and the subsurface fit (per region
+or per texel, with its own ladder). See docs/fit.md."""
 
 from ._driver import ALPHA_FIT_MIN as ALPHA_FIT_MIN
 from ._driver import FAILED_NONFINITE as FAILED_NONFINITE
@@ -12,3 +12,4 @@ from ._driver import Fit as Fit
 from ._driver import fit as fit
 from ._driver import rig_alpha_floor as rig_alpha_floor
 from ._subsurface import fit_subsurface as fit_subsurface
+from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP

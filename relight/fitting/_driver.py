@@ -27,6 +27,8 @@ Subsurface (mean free path) is fitted afterwards, across samples, by
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -100,7 +102,17 @@ class Fit(eqx.Module):
     "narrower than the rig can tell", flagged by ``unresolved``), the mean
     free path [P, 3] (mm; after :func:`relight.fit_subsurface`, else None) and
     the solver's name (``solver``: the string given to :func:`fit`, or the
-    class and tolerances of the Optimistix solver object)."""
+    class and tolerances of the Optimistix solver object).
+
+    After :func:`relight.fit_subsurface` (else None): ``mfp_sigma`` [P, 3], the
+    1-sigma of ln(mfp) per channel from the data alone (s^2 (J^T J)^-1 with the
+    albedo marginalised, the prior left out; for a per-region texel the
+    region's shared value's, the texels' informations summed; inf where not
+    identifiable or no subsurface), ``mfp_rung`` [P] int32 (0 = no subsurface:
+    the BRDF's local Lambert term, mfp 0; 1 = the region's mean free path; 2 =
+    the texel's own) and the property ``mfp_identified`` [P, 3] (sigma below
+    ``Fit.IDENTIFIED_SIGMA`` = 0.25). ``model`` is SUBSURFACE where
+    ``mfp_rung`` > 0."""
 
     rho_d: Float[Array, "sample 3"]
     rho_s: Float[Array, "sample 1"]
@@ -117,6 +129,10 @@ class Fit(eqx.Module):
     alpha_floor: float = eqx.field(static=True, default=ALPHA_FIT_MIN)
     mfp: Float[Array, "sample 3"] | None = None
     solver: str = eqx.field(static=True, default="lm")
+    mfp_sigma: Float[Array, "sample 3"] | None = None
+    mfp_rung: Int[Array, " sample"] | None = None
+    # mfp_identified's bar on the 1-sigma of ln mfp: 25% relative.
+    IDENTIFIED_SIGMA: ClassVar[float] = 0.25
 
     @property
     def f0(self):
@@ -127,6 +143,14 @@ class Fit(eqx.Module):
     def failed(self):
         """Samples whose solve failed or that had too few observations."""
         return (self.result != 0) | (self.observed < _MIN_OBSERVATIONS)
+
+    @property
+    def mfp_identified(self):
+        """[P, 3] bool: texel-channels whose mean free path the data pin to a 1-sigma of ln mfp below
+        IDENTIFIED_SIGMA (0.25); None before :func:`relight.fit_subsurface`."""
+        if self.mfp_sigma is None:
+            return None
+        return jnp.isfinite(self.mfp_sigma) & (self.mfp_sigma < self.IDENTIFIED_SIGMA)
 
     @property
     def unresolved(self):

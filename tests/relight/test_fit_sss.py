@@ -83,3 +83,20 @@ def test_bad_regions_are_refused(sphere):
         relight.fit_subsurface(cap, surface, f, regions=np.zeros(3, int))
     with pytest.raises(ValueError, match="mfp_range"):
         relight.fit_subsurface(cap, surface, f, mfp_range=(2.0, 1.0))
+
+
+def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
+    """per="auto" on Lambertian data (no subsurface): the local Lambert rung
+    (mfp_rung 0, the BRDF's model and albedo kept, mfp 0) for > 90% of the
+    samples (measured: all 490): subsurface's Fresnel in/out factors do not
+    fit a Lambertian surface better than its own term."""
+    surface = sphere[0]
+    cap, _ = _capture(sphere, None, seed=3)
+    f = relight.fit(cap, surface)
+    g = relight.fit_subsurface(cap, surface, f, per="auto", holdout=3, radius_mm=5.0, mfp_range=(0.05, 4.0))
+    rung = np.asarray(g.mfp_rung)
+    assert np.mean(rung == 0) > 0.9
+    lam = rung == 0
+    assert np.all(np.asarray(g.model)[lam] == np.asarray(f.model)[lam])
+    np.testing.assert_array_equal(np.asarray(g.rho_d)[lam], np.asarray(f.rho_d)[lam])
+    assert np.all(np.asarray(g.mfp)[lam] == 0) and np.all(np.isinf(np.asarray(g.mfp_sigma)[lam]))
