@@ -23,6 +23,7 @@ the gathered irradiance the LM uses.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -128,6 +129,9 @@ def main(argv=None):
     ap.add_argument("--dome", type=int, default=1)
     ap.add_argument("--scipy-texels", type=int, default=40)
     ap.add_argument("--float32", action="store_true", help="run JAX in float32 (x64 off)")
+    ap.add_argument("--json", default=str(Path(__file__).resolve().parent.parent / "docs" / "figures" /
+                                          "fit_subsurface_bench.json"),
+                    help="where to write the rows (read by scripts/chart_fit.py --subsurface; '' = nowhere)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     surface, cap, truth, op = scene(args.texel_res, args.dome)
@@ -167,6 +171,18 @@ def main(argv=None):
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for name, t, rate, e_all, e_id, e_big in rows:
         print(f"| {name} | {t:.2f} | {rate:.0f} | {e_all:.3f} | {e_id:.3f} | {e_big:.3f} |")
+    if args.json:
+        import json
+        import platform
+
+        doc = {"command": "python scripts/bench_fit_subsurface.py " + " ".join(sys.argv[1:] if argv is None else argv),
+               "machine": f"{platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__} "
+                          f"({jax.devices()[0].platform}), {jnp.result_type(float)}",
+               "texels": P, "lights": L, "identifiable_fraction": float(ident.mean()),
+               "rows": [dict(name=n, seconds=t, texels_per_s=r, mfp_rel_median=e, mfp_rel_identifiable=i,
+                             mfp_rel_true_ge_1p5mm=b) for n, t, r, e, i, b in rows]}
+        Path(args.json).write_text(json.dumps(doc, indent=2, default=float))
+        print(f"wrote {args.json}")
     agree = np.abs(ln_sp - np.log(np.asarray(texel.mfp))[sub])
     print(f"\nidentifiable texel-channels: {ident.mean():.1%} (per channel {np.round(ident.mean(0), 3)}); "
           f"scipy vs the optx solve on the subset: median |d ln mfp| {np.median(agree):.2e}, "

@@ -19,12 +19,18 @@ on a ``--chunk``-sized subset with the same array shapes (it compiles), then the
 timed fit of all ``--texels`` (compile time = warm-up time minus the subset's
 share of the timed fit, approximately).
 
-Writes docs/figures/fit_speed_accuracy.png and docs/figures/fit_speed_accuracy.md.
+Writes docs/figures/fit_speed_accuracy.png, .md and .json (the rows). With
+``--subsurface`` (default docs/figures/fit_subsurface_bench.json, written by
+scripts/bench_fit_subsurface.py) a third panel puts the subsurface fit
+(per-region, per-texel, the scipy baseline) on the same chart: its mean free
+path error against its time. ``--replot`` redraws from the saved .json rows
+without fitting.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -64,9 +70,16 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--noise", type=float, default=0.01)
     ap.add_argument("--out", default=str(FIG))
+    ap.add_argument("--subsurface", default=str(FIG / "fit_subsurface_bench.json"),
+                    help="rows of scripts/bench_fit_subsurface.py for the third panel ('' = none)")
+    ap.add_argument("--replot", action="store_true", help="redraw from fit_speed_accuracy.json, no fitting")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.replot:
+        doc = json.loads((out / "fit_speed_accuracy.json").read_text())
+        plot(doc["rows"], doc["texels"], doc["noise"], out, args.subsurface)
+        return
     t_start = time.perf_counter()
 
     rig = stage.light_stage_x()
@@ -132,12 +145,18 @@ def main(argv=None):
     print()
     print(md)
     (out / "fit_speed_accuracy.md").write_text(md)
+    (out / "fit_speed_accuracy.json").write_text(json.dumps({"texels": P, "noise": args.noise, "rows": rows},
+                                                             indent=2, default=float))
+    plot(rows, P, args.noise, out, args.subsurface)
 
+
+def plot(rows, P, noise, out: Path, subsurface: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    sss = json.loads(Path(subsurface).read_text()) if subsurface and Path(subsurface).is_file() else None
+    fig, axes = plt.subplots(1, 3 if sss else 2, figsize=(16.5 if sss else 11, 4.2))
     marks = dict(zip(RUNGS, "osD^", strict=False))
     cols = dict(zip(relight.SOLVERS, ("C0", "C1", "C2", "C3"), strict=False))
     for r in rows:
@@ -145,7 +164,7 @@ def main(argv=None):
                   facecolors=cols[r["solver"]] if r["normals"] else "none", s=45)
         axes[0].scatter(r["t"], r["e_rho"], **kw)
         axes[1].scatter(r["t"], r["e_n"], **kw)
-    for ax, lab in zip(axes, ("median albedo error (relative)", "median normal error (deg)"), strict=False):
+    for ax, lab in zip(axes[:2], ("median albedo error (relative)", "median normal error (deg)"), strict=True):
         ax.set_xlabel(f"seconds to fit {P} texels (2-core CPU, compile excluded)")
         ax.set_ylabel(lab)
         ax.set_yscale("log")
@@ -155,7 +174,20 @@ def main(argv=None):
     hs += [plt.Line2D([], [], marker="o", ls="", color="k", label="with normals"),
            plt.Line2D([], [], marker="o", ls="", mfc="none", color="k", label="without normals")]
     axes[1].legend(handles=hs, fontsize=7, loc="best")
-    fig.suptitle(f"relight.fit speed vs accuracy: Light Stage X, {P} texels, {args.noise:.0%} noise")
+    if sss:
+        ax = axes[2]
+        for k, r in enumerate(sss["rows"]):
+            sec_per_k = 1000.0 / r["texels_per_s"]
+            ax.scatter(sec_per_k, r["mfp_rel_identifiable"], marker="os^v"[k % 4], s=45, color=f"C{4 + k}",
+                       label=r["name"])
+        ax.set_xlabel("seconds per 1000 texels (warm)")
+        ax.set_ylabel("median mean-free-path error (relative),\nover identifiable texel-channels")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, loc="best")
+        ax.set_title(f"relight.fit_subsurface: {sss['texels']} texels, {sss['lights']} lights", fontsize=9)
+    fig.suptitle(f"relight.fit speed vs accuracy: Light Stage X, {P} texels, {noise:.0%} noise")
     fig.tight_layout()
     fig.savefig(out / "fit_speed_accuracy.png", dpi=120)
     print(f"wrote {out / 'fit_speed_accuracy.md'} and {out / 'fit_speed_accuracy.png'}")
