@@ -155,8 +155,12 @@ class _Renderer:
             lt = dataclasses.replace(lt, settings={**lt.settings, "operator": self.op})
         wo = self.maps.frame(self.texel_surface).normal
         _, M = rs.shade(lt, self.tex_geo, self.maps, self.texel_surface, wo, rotation=rotation, key=key)
+        # Only subsurface texels hold an exitance: a pixel on the subsurface rung next to a texel on
+        # another rung must not blend that texel's 0 in (dark seams where the rungs meet), so the
+        # others are filled from their subsurface neighbours, as chart borders are.
         valid = np.zeros(self.texel_surface.resolution, bool).ravel()
-        valid[np.asarray(self.texel_surface.texel_index)] = True
+        idx = np.asarray(self.texel_surface.texel_index)
+        valid[idx[np.asarray(self.maps.model) == SUBSURFACE]] = True
         tex = self.texel_surface.to_texture(np.asarray(M, np.float32))
         return dilate(tex, valid.reshape(self.texel_surface.resolution), _DILATE_TEXELS)
 
