@@ -308,15 +308,17 @@ def _chunks_of(index, size):
         yield idx, n
 
 
-def _fit_rung(data, w, h, index, lay, u0, opts, progress, phase):
-    """Fit one rung to the samples ``index``; returns per-sample arrays over
-    ``index``. Reports the samples finished as ``progress(phase, done, len(index))``."""
+def _fit_rung(data, w, h, index, lay, u0, opts, bar):
+    """Fit one rung to the samples ``index`` (of the block ``data``); returns
+    per-sample arrays over ``index``. Counts the samples finished on ``bar``
+    (a ``stage.Phase``). Every chunk goes to the devices through
+    ``opts["put"]`` (:func:`_placer`)."""
     obs, _, wi, wo, irr = data
     chunk = opts["size"]
+    put = opts["put"]
     n_all = len(index)
     local = np.arange(n_all)
-    take = lambda x, idx: jnp.asarray(x[index[idx]])  # noqa: E731
-    bar = stage.Phase(progress, phase, n_all)
+    take = lambda x, idx: put(x[index[idx]])  # noqa: E731
     if u0 is None:
         u = np.zeros((n_all, lay.size), obs.dtype)
         for idx, n in _chunks_of(local, chunk):
@@ -333,7 +335,7 @@ def _fit_rung(data, w, h, index, lay, u0, opts, progress, phase):
     active = local
     for _ in range(opts["rounds"]):
         for idx, n in _chunks_of(active, chunk):
-            out = _solve_chunk(jnp.asarray(u[idx]), take(obs, idx), take(w, idx), take(h, idx), take(wi, idx),
+            out = _solve_chunk(put(u[idx]), take(obs, idx), take(w, idx), take(h, idx), take(wi, idx),
                                take(wo, idx), take(irr, idx), lay=lay, solver=opts["solver"],
                                max_steps=opts["steps_per_round"], cauchy=opts["cauchy"])
             uu, rr, cc, kk, ss, hh = (np.asarray(x)[:n] for x in out)
@@ -363,11 +365,146 @@ def _rungs(model) -> tuple[int, ...]:
     return (MODELS.index(model),)
 
 
-def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
+# ------------------------------------------------------------------ capture sources
+# fit reads a capture one block of samples at a time from any of: a stage.Capture (radiance / mask sliced);
+# an object with read(views=, lights=, samples=) -> (radiance, mask) (relight.io.CaptureStore), optionally
+# read_mask(samples=) for the counting pass; an object with load(samples=) -> .radiance / .valid
+# (relight.io.CaptureReader, a capture folder). Each needs shape (V, L, P, C) and rig / cameras as stage
+# objects or stage_rig() / stage_cameras() methods returning them.
+
+def _source_kind(capture) -> str:
+    """Which of the protocols above ``capture`` follows; TypeError naming ``capture`` if none."""
+    if hasattr(capture, "radiance") and hasattr(capture, "mask"):
+        return "arrays"
+    if callable(getattr(capture, "read", None)) and hasattr(capture, "shape"):
+        return "read"
+    if callable(getattr(capture, "load", None)) and hasattr(capture, "shape"):
+        return "load"
+    raise TypeError("fit: capture must be a stage.Capture or a capture source: shape (V, L, P, C) and "
+                    "read(views=, lights=, samples=) -> (radiance, mask) (relight.io.open_capture_store) or "
+                    f"load(samples=) (relight.io.open_capture), got {type(capture).__name__}")
+
+
+def _rig_and_cameras(capture):
+    """The capture's ``stage.Rig`` and ``stage.Camera`` s (a source's stage_rig() / stage_cameras())."""
+    rig = capture.stage_rig() if callable(getattr(capture, "stage_rig", None)) else capture.rig
+    cams = capture.stage_cameras() if callable(getattr(capture, "stage_cameras", None)) else capture.cameras
+    return rig, tuple(cams)
+
+
+def _read_samples(capture, kind, s, e):
+    """(radiance [V, L, e - s, C], mask [V, L, e - s] bool) of samples s..e, as NumPy."""
+    if kind == "arrays":
+        return np.asarray(capture.radiance[:, :, s:e]), np.asarray(capture.mask[:, :, s:e], bool)
+    if kind == "read":
+        rad, mask = capture.read(samples=slice(s, e))
+        return np.asarray(rad), np.asarray(mask, bool)
+    data = capture.load(samples=slice(s, e))
+    rad = np.asarray(data.radiance)
+    # A capture folder without a 'valid' channel marks every observation valid (as load_texel_capture does).
+    mask = np.ones(rad.shape[:3], bool) if data.valid is None else np.asarray(data.valid, bool)
+    return rad, mask
+
+
+def _read_mask(capture, kind, s, e):
+    """The mask [V, L, e - s] of samples s..e, without the radiance where the source can."""
+    if kind == "arrays":
+        return np.asarray(capture.mask[:, :, s:e], bool)
+    if callable(getattr(capture, "read_mask", None)):
+        return np.asarray(capture.read_mask(samples=slice(s, e)), bool)
+    return _read_samples(capture, kind, s, e)[1]
+
+
+def _valid_counts(capture, kind, P, step):
+    """Valid observations per sample [P] (views x lights), one block of ``step`` samples at a time."""
+    out = np.zeros(P, np.int64)
+    for s in range(0, P, step):
+        e = min(s + step, P)
+        out[s:e] = np.sum(_read_mask(capture, kind, s, e), axis=(0, 1))
+    return out
+
+
+# ------------------------------------------------------------------ devices
+
+def _fit_devices(devices) -> list:
+    """The devices a fit runs on: None = every local device (``jax.local_devices()``),
+    an int n = the first n of them, or a sequence of devices. ValueError naming ``devices``."""
+    local = jax.local_devices()
+    if devices is None:
+        return list(local)
+    if isinstance(devices, (int, np.integer)) and not isinstance(devices, bool):
+        if not 1 <= int(devices) <= len(local):
+            raise ValueError(f"fit: devices must be between 1 and the {len(local)} local device(s), got {devices}")
+        return list(local[:int(devices)])
+    try:
+        devs = list(devices)
+    except TypeError:
+        raise ValueError(f"fit: devices must be None, an int or a sequence of jax devices, got {devices!r}") from None
+    if not devs or not all(isinstance(d, jax.Device) for d in devs) or len(set(devs)) != len(devs):
+        raise ValueError(f"fit: devices must be a non-empty sequence of distinct jax devices, got {devices!r}")
+    return devs
+
+
+def _placer(devs):
+    """``put(x)``: a NumPy chunk [n, ...] as a jax array on ``devs``. One device: that device (the
+    default device's is today's ``jnp.asarray``). Several: the sample axis split over a 1-D
+    ``Mesh(devs, ("samples",))`` (``NamedSharding(mesh, PartitionSpec("samples"))``, the rest
+    replicated), so the jitted vmapped solve runs data-parallel: no sample talks to another, and the
+    partitioner only adds an all-reduce for the batched while loop's "any sample still running"."""
+    if len(devs) == 1:
+        if devs[0] == jax.devices()[0]:
+            return jnp.asarray
+        return lambda x: jax.device_put(x, devs[0])
+    mesh = jax.sharding.Mesh(np.asarray(devs, dtype=object), ("samples",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("samples"))
+    return lambda x: jax.device_put(x, sharding)
+
+
+class _Phases:
+    """One progress counter per phase name for the whole fit, made at first use, so a phase
+    spans every block (``stage.Phase``; its total may be set later, when known)."""
+
+    def __init__(self, progress):
+        self.progress, self.bars = progress, {}
+
+    def __call__(self, name: str, total: int | None) -> stage.Phase:
+        bar = self.bars.get(name)
+        if bar is None:
+            bar = self.bars[name] = stage.Phase(self.progress, name, total)
+        else:
+            bar.total = total
+        return bar
+
+    def finish(self, name: str, total: int) -> None:
+        """Report ``name``'s total if the blocks that ran it did not know it yet."""
+        bar = self.bars.get(name)
+        if bar is not None and bar.total is None:
+            bar.total = total
+            bar.advance(0)
+
+
+# The Fit's per-sample fields fit assembles (and on_block receives), with their trailing shape and kind.
+_FIELDS = dict(rho_d=((3,), "f"), rho_s=((1,), "f"), alpha=((2,), "f"), normal=((3,), "f"), tangent=((3,), "f"),
+               model=((), "i"), residual=((), "f"), heldout=((), "f"), result=((), "i"), steps=((), "i"),
+               observed=((), "o"), uncertainty=((9,), "f"))
+
+
+def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False,
         solver="lm", loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None,
         holdout: int = 5, chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float | None = None,
-        atol: float | None = None, progress=None) -> Fit:
+        atol: float | None = None, progress=None, block: int = 4096, devices=None, on_block=None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
+
+    ``capture``: a ``stage.Capture``, or a capture source read ``block``
+    samples at a time, never whole: any object with ``shape`` (V, L, P, C),
+    ``rig`` / ``cameras`` as stage objects or ``stage_rig()`` /
+    ``stage_cameras()`` methods, and either ``read(views=, lights=,
+    samples=slice) -> (radiance [V, L, n, C], mask [V, L, n])`` (a
+    ``relight.io.open_capture_store`` store; an optional
+    ``read_mask(samples=)`` spares the counting pass the radiance) or
+    ``load(samples=slice)`` returning ``.radiance`` / ``.valid`` (a
+    ``relight.io.open_capture`` folder; no valid channel = all valid).
+    Sample p of the capture is sample p of ``surface``.
 
     ``model``: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",
     "ggx_aniso") or "auto" (the ladder: every rung is fitted on all but every
@@ -391,66 +528,141 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
     ``loss``: "cauchy" (scale ``cauchy`` x the sample's RMS radiance) or "l2".
     ``alpha_floor``: smallest roughness; default :func:`rig_alpha_floor`.
 
-    Samples are solved ``chunk`` at a time (``jax.vmap`` over the chunk), so
-    solver memory is bounded by the chunk (a vmapped solve runs until its
-    slowest sample stops, so small chunks waste fewer steps; 64-256 measured
-    best on 2 CPU cores, ``scripts/bench_fit.py``); each sample gets up to ``rounds *
-    steps_per_round`` steps, later rounds only for samples still unconverged
-    (compacted). ``progress(phase, done, total)`` (``stage.Progress``) reports
-    finished samples per pass: phase "fit <rung>" (``model="auto"``: first
-    "fit <rung> (held out)" for each rung's trial, then "fit <rung>" for each
-    refit), ``done`` of ``total`` samples. NaN never leaves: a sample with too few
-    observations gets grey defaults, and one whose solve fails keeps its start;
-    both are flagged in ``Fit.failed``.
+    Memory (docs/fit.md, "Memory and devices"): samples are read, turned
+    into observations, fitted (every rung, the ladder's choice included:
+    all of it is per sample) and freed ``block`` at a time, so the working
+    set is set by ``block`` (about 40 KiB per sample of a block), not by P;
+    the result is a few floats per sample. Any ``block`` gives the same fit
+    (``block >= P`` is one block: the whole capture at once).
+    Within a block, samples are solved ``chunk`` at a time (``jax.vmap`` over
+    the chunk; every call has the same shape, so each rung compiles once per
+    fit), so solver memory is bounded by the chunk (a vmapped solve runs until
+    its slowest sample stops, so small chunks waste fewer steps; 64-256
+    measured best on 2 CPU cores, ``scripts/bench_fit.py``); each sample gets
+    up to ``rounds * steps_per_round`` steps, later rounds only for samples
+    still unconverged (compacted within the block). ``devices``: None = every
+    local device (``jax.local_devices()``), an int n = the first n, or a
+    sequence of devices; with several, each chunk (rounded up to a multiple
+    of their number) has its sample axis split over them
+    (``NamedSharding`` on a 1-D ``Mesh`` named "samples"): data-parallel.
+    ``on_block(start, stop, arrays)``, if given, is called after each block
+    with ``arrays`` a dict of NumPy arrays over samples start..stop, the
+    Fit's per-sample fields as they will be in the result (rho_d, rho_s,
+    alpha, normal, tangent, model, residual, heldout, result, steps,
+    observed, uncertainty): to write results as they are produced.
+
+    ``progress(phase, done, total)`` (``stage.Progress``) reports finished
+    samples per pass over all blocks: phase "fit <rung>" (``model="auto"``:
+    "fit <rung> (held out)" for each rung's trial, total P, and "fit <rung>"
+    for each refit, its total the samples that chose the rung: None until
+    the last block is decided), ``done`` of ``total`` samples; with several
+    blocks the phases take turns, block by block. NaN never leaves: a sample
+    with too few observations gets grey defaults, and one whose solve fails
+    keeps its start; both are flagged in ``Fit.failed``.
     """
-    V, L, P, C = capture.radiance.shape
+    kind = _source_kind(capture)
+    V, L, P, C = (int(s) for s in capture.shape)
+    _check_fit_args(P, C, surface, chunk, rounds, steps_per_round, block, progress, on_block, loss, cauchy, model,
+                    holdout)
+    solver, solver_name = resolve_solver(solver, rtol, atol)
+    rungs = _rungs(model)
+    rig, cameras = _rig_and_cameras(capture)
+    if len(cameras) != V:
+        raise ValueError(f"fit: capture has {V} views but {len(cameras)} cameras")
+    floor = rig_alpha_floor(rig) if alpha_floor is None else float(alpha_floor)
+    if not 0 < floor < 1:
+        raise ValueError(f"fit: alpha_floor must be in (0, 1), got {floor}")
+    devs = _fit_devices(devices)
+    block = int(block)
+    # Optimistix's LM mixes its damping dtype with JAX's default float, so
+    # compute in that (float32 unless jax_enable_x64 is on).
+    dt = np.dtype(jnp.result_type(float))
+    # One observation count for every chunk of every block (the largest any
+    # sample has, rounded up) so the solver compiles once: a pass over the mask only.
+    n_valid = _valid_counts(capture, kind, P, block)
+    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
+    # One padded chunk shape for the whole fit (P, not the block, sets it), a multiple of the devices.
+    size = -(-_chunk_size(P, chunk) // len(devs)) * len(devs)
+    opts = dict(size=size, rounds=rounds, steps_per_round=steps_per_round, solver=solver, put=_placer(devs),
+                cauchy=float(cauchy) if loss == "cauchy" else None)
+    kinds = {"f": dt, "i": np.int32, "o": np.float32}
+    out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in _FIELDS.items()}
+    phases = _Phases(progress)
+    chosen = dict.fromkeys(rungs, 0)
+    for b0 in range(0, P, block):
+        b1 = min(b0 + block, P)
+        part = _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid[b0:b1], n_keep, dt, rungs, normals,
+                          floor, holdout, chunk, opts, phases, chosen, last=b1 == P)
+        for k, v in part.items():
+            out[k][b0:b1] = v
+        if on_block is not None:
+            on_block(b0, b1, part)
+    # A refit phase whose rung the last block did not use learns its total only now.
+    for k in rungs if len(rungs) > 1 else ():
+        phases.finish(f"fit {MODELS[k]}", chosen[k])
+    f = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    i32 = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
+    return Fit(rho_d=f(out["rho_d"]), rho_s=f(out["rho_s"]), alpha=f(out["alpha"]), normal=f(out["normal"]),
+               tangent=f(out["tangent"]), model=i32(out["model"]), residual=f(out["residual"]),
+               heldout=f(out["heldout"]), result=i32(out["result"]), steps=i32(out["steps"]),
+               observed=jnp.asarray(out["observed"], jnp.float32), uncertainty=f(out["uncertainty"]),
+               alpha_floor=floor, solver=solver_name)
+
+
+def _check_fit_args(P, C, surface, chunk, rounds, steps_per_round, block, progress, on_block, loss, cauchy, model,
+                    holdout) -> None:
+    """fit's argument checks: ValueError / TypeError naming the argument."""
     if surface.num_samples != P:
         raise ValueError(f"fit: capture has {P} samples but the surface has {surface.num_samples}")
     if C != 3:
         raise ValueError(f"fit: expects RGB radiance (C = 3), got C = {C}")
     if chunk < 1 or rounds < 1 or steps_per_round < 1:
         raise ValueError("fit: chunk, rounds and steps_per_round must be >= 1")
+    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
+        raise ValueError(f"fit: block must be an int >= 1 (samples per block), got {block!r}")
     if progress is not None and not callable(progress):
         raise TypeError(f"fit: progress must be a callable progress(phase, done, total) or None, got {progress!r}")
-    solver, solver_name = resolve_solver(solver, rtol, atol)
+    if on_block is not None and not callable(on_block):
+        raise TypeError(f"fit: on_block must be a callable on_block(start, stop, arrays) or None, got {on_block!r}")
     if loss not in LOSSES:
         raise ValueError(f"fit: loss must be one of {LOSSES}, got {loss!r}")
     if loss == "cauchy" and not cauchy > 0:
         raise ValueError(f"fit: the Cauchy scale must be > 0, got {cauchy}")
     if model == "auto" and holdout < 2:
         raise ValueError(f"fit: holdout must be >= 2 (every holdout-th light is held out), got {holdout}")
-    rungs = _rungs(model)
-    floor = rig_alpha_floor(capture.rig) if alpha_floor is None else float(alpha_floor)
-    if not 0 < floor < 1:
-        raise ValueError(f"fit: alpha_floor must be in (0, 1), got {floor}")
-    # Optimistix's LM mixes its damping dtype with JAX's default float, so
-    # compute in that (float32 unless jax_enable_x64 is on).
-    dt = np.dtype(jnp.result_type(float))
-    # One observation count for every chunk (the largest any sample has,
-    # rounded up) so the solver compiles once.
-    n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
-    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
-    parts = [_observations(capture, surface, s, min(s + chunk, P), n_keep, dt) for s in range(0, P, chunk)]
+
+
+def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt, rungs, normals, floor, holdout,
+               chunk, opts, phases, chosen, last):
+    """Every rung (and the ladder's choice) for samples b0..b1: the Fit's per-sample fields as NumPy
+    arrays [b1 - b0, ...] (``_FIELDS``). The block's observations live only in here."""
+    n = b1 - b0
+    rad, mask = _read_samples(capture, kind, b0, b1)
+    parts = [_observations_of(rad[:, :, s - b0:e - b0], mask[:, :, s - b0:e - b0], rig, cameras,
+                              surface.subset(np.arange(s, e)), n_keep, dt)
+             for s, e in ((s, min(s + chunk, b1)) for s in range(b0, b1, chunk))]
+    del rad, mask
     obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts, strict=True))
+    del parts
     # The solver sees radiance per unit irradiance (docs/fit.md, "Units and scale").
     obs, irr, unit = _normalise(obs, w, irr)
     data = (obs, w, wi, wo, irr)
-    opts = dict(size=_chunk_size(P, chunk), rounds=rounds, steps_per_round=steps_per_round, solver=solver,
-                cauchy=float(cauchy) if loss == "cauchy" else None)
-    every = np.arange(P)
+    every = np.arange(n)
     zero = np.zeros_like(w)
+    block_surface = surface.subset(np.arange(b0, b1))
 
     if len(rungs) == 1:
-        choice = np.full(P, rungs[0], np.int32)
-        fits = {rungs[0]: (every, _fit_rung(data, w, zero, every, Layout(rungs[0], normals, floor), None, opts,
-                                              progress, f"fit {MODELS[rungs[0]]}"))}
-        heldout = np.zeros(P, dt)
+        k = rungs[0]
+        choice = np.full(n, k, np.int32)
+        bar = phases(f"fit {MODELS[k]}", surface.num_samples)
+        fits = {k: (every, _fit_rung(data, w, zero, every, Layout(k, normals, floor), None, opts, bar))}
+        heldout = np.zeros(n, dt)
     else:
         hmask = (light % holdout == holdout // 2)[..., None].astype(dt) * w
         train = w - hmask
-        trial = {k: _fit_rung(data, train, hmask, every, Layout(k, normals, floor), None, opts, progress,
-                              f"fit {MODELS[k]} (held out)") for k in rungs}
-        hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, P]
+        trial = {k: _fit_rung(data, train, hmask, every, Layout(k, normals, floor), None, opts,
+                              phases(f"fit {MODELS[k]} (held out)", surface.num_samples)) for k in rungs}
+        hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, n]
         n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
         best = np.min(hm, axis=0)
         # Noise from the richest rung's training residual; the held-out MSE of
@@ -463,31 +675,30 @@ def fit(capture: stage.Capture, surface: stage.Surface, *, model: str = "ggx", n
         fits = {}
         for k in rungs:
             sel = np.nonzero(choice == k)[0]
+            chosen[k] += len(sel)
             if len(sel):
+                bar = phases(f"fit {MODELS[k]}", chosen[k] if last else None)
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
-                                          progress, f"fit {MODELS[k]}"))
-    out = _assemble(fits, choice, P, normals, floor, dt, surface)
+                                          bar))
+    out = _assemble(fits, choice, n, normals, floor, dt, block_surface)
     nobs = n_valid.astype(np.float32)
     empty = nobs < _MIN_OBSERVATIONS
     # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
     out["rho_d"][empty] = 0.5
     out["rho_s"][empty] = 0.04
     out["alpha"][empty] = 0.3
-    out["normal"][empty] = np.asarray(surface.normal, dt)[empty]
-    out["tangent"][empty] = np.asarray(surface.tangent, dt)[empty]
+    out["normal"][empty] = np.asarray(block_surface.normal, dt)[empty]
+    out["tangent"][empty] = np.asarray(block_surface.tangent, dt)[empty]
     out["uncertainty"][empty] = 0.0
     big = np.finfo(np.float32).max
     for k in ("rho_d", "rho_s", "alpha", "uncertainty"):
         out[k] = np.nan_to_num(out[k], nan=0.0, posinf=0.0, neginf=0.0)
     # Residuals back in the capture's radiance units.
     out["residual"] = np.nan_to_num(out["residual"] * unit.astype(dt), nan=big, posinf=big)
-    heldout = heldout * unit.astype(dt)
-    f32 = lambda x: jnp.asarray(x, dt)  # noqa: E731
-    return Fit(rho_d=f32(out["rho_d"]), rho_s=f32(out["rho_s"]), alpha=f32(out["alpha"]), normal=f32(out["normal"]),
-               tangent=f32(out["tangent"]), model=jnp.asarray(choice, jnp.int32), residual=f32(out["residual"]),
-               heldout=f32(np.nan_to_num(heldout)), result=jnp.asarray(out["result"], jnp.int32),
-               steps=jnp.asarray(out["steps"], jnp.int32), observed=jnp.asarray(nobs, jnp.float32),
-               uncertainty=f32(out["uncertainty"]), alpha_floor=floor, solver=solver_name)
+    out["heldout"] = np.nan_to_num(heldout * unit.astype(dt))
+    out["model"] = choice
+    out["observed"] = nobs
+    return {k: out[k] for k in _FIELDS}
 
 
 def _assemble(fits, choice, P, normals, floor, dt, surface):
@@ -537,21 +748,31 @@ def _normalise(obs, w, irr):
 
 
 def _observations(capture, surface, s, e, n_keep, dt):
-    """Per-sample observation arrays [e - s, n_keep, ...] for samples s..e:
+    """Per-sample observation arrays [e - s, n_keep, ...] for samples s..e of
+    ``capture`` (a stage.Capture or a source, as :func:`fit` takes):
     radiance, weights (1 valid / 0 padding), wi, wo (local), irradiance and
     the light index of each observation."""
-    sub = surface.subset(np.arange(s, e))
+    kind = _source_kind(capture)
+    rad, mask = _read_samples(capture, kind, s, e)
+    rig, cameras = _rig_and_cameras(capture)
+    return _observations_of(rad, mask, rig, cameras, surface.subset(np.arange(s, e)), n_keep, dt)
+
+
+def _observations_of(radiance, mask, rig, cameras, sub, n_keep, dt):
+    """:func:`_observations` of samples already read: ``radiance`` [V, L, n, C], ``mask`` [V, L, n]
+    and their surface ``sub`` (n samples)."""
+    n = sub.num_samples
     obs_v, w_v, wi_v, wo_v, irr_v, li_v = [], [], [], [], [], []
-    L = capture.rig.num_lights
-    for v, cam in enumerate(capture.cameras):
-        wi, wo, irr = stage.shading_directions(sub, capture.rig, cam)
-        obs_v.append(np.swapaxes(np.asarray(capture.radiance[v, :, s:e], np.float32), 0, 1))
-        w_v.append(np.swapaxes(np.asarray(capture.mask[v, :, s:e]), 0, 1))
+    L = rig.num_lights
+    for v, cam in enumerate(cameras):
+        wi, wo, irr = stage.shading_directions(sub, rig, cam)
+        obs_v.append(np.swapaxes(np.asarray(radiance[v], np.float32), 0, 1))
+        w_v.append(np.swapaxes(np.asarray(mask[v]), 0, 1))
         wi_v.append(np.swapaxes(np.asarray(wi), 0, 1))
         wo_v.append(np.broadcast_to(np.asarray(wo)[:, None], wi_v[-1].shape))
         irr_v.append(np.swapaxes(np.asarray(irr), 0, 1))
-        li_v.append(np.broadcast_to(np.arange(L)[None], (e - s, L)))
-    cat = lambda xs: np.concatenate(xs, axis=1)  # noqa: E731  [Pc, V*L, ...]
+        li_v.append(np.broadcast_to(np.arange(L)[None], (n, L)))
+    cat = lambda xs: np.concatenate(xs, axis=1)  # noqa: E731  [n, V*L, ...]
     obs, wmask, wi, wo, irr, li = cat(obs_v), cat(w_v), cat(wi_v), cat(wo_v), cat(irr_v), cat(li_v)
     # Keep only valid observations (valid first, then padding): typically
     # half of a rig's lights are behind a sample.
