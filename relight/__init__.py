@@ -18,6 +18,7 @@ from .fitting import SOLVERS as SOLVERS
 from .fitting import Fit as Fit
 from .fitting import fit as fit
 from .fitting import fit_subsurface as fit_subsurface
+from .fitting import fit_with_subsurface as fit_with_subsurface
 from .fitting import rig_alpha_floor as rig_alpha_floor
 from .materials import MODELS as MODELS
 from .materials import LadderBRDF as LadderBRDF

@@ -1,6 +1,11 @@
-"""The main job end to end on built-in data: simulate the bundled head scan
-under the bundled Light Stage X rig, fit its reflectance, relight it under the
-bundled environment map, and write EXRs, PNG previews and a report."""
+"""The main job end to end on built-in data, on the real problem: the bundled
+head scan with its own skin textures (albedo, specular and normal maps) and
+spatially varying subsurface scattering, photographed under the bundled Light
+Stage X by several cameras with sensor noise; the full model ladder fitted
+(BRDF rungs, then none / per-region / per-texel subsurface); the fitted maps
+and the truth maps relit by the same renderer under the bundled environment
+map; a report of every map's error over the seen texels and the time of each
+stage."""
 
 from __future__ import annotations
 
@@ -10,153 +15,318 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_envmap, add_image_size, add_out, bar, demo_material, envmap_path, finish_parser
+from ._common import CLIError, add_envmap, add_image_size, add_out, at_least, bar, finish_parser
+
+# Shot noise: this many photo-electrons at the median observed radiance (1% relative noise there).
+_ELECTRONS_AT_MEDIAN = 1.0e4
 
 
 def add_parser(sub) -> None:
-    d = sub.add_parser("demo", help="simulate, fit and relight the bundled head scan (built-in defaults)")
+    d = sub.add_parser("demo", help="simulate, fit and relight the bundled textured head (built-in defaults)",
+                       description=__doc__)
     add_out(d, "output folder (default: ./relight-demo)", default="relight-demo")
-    d.add_argument("--resolution", type=int, default=128, help="texel grid size (default: 128)")
+    d.add_argument("--resolution", type=int, default=96, help="texel grid size (default: 96)")
+    d.add_argument("--cameras", type=int, default=3, help="cameras over 80 degrees around the front (default: 3)")
+    d.add_argument("--noise", type=float, default=0.01,
+                   help="relative shot noise at the median observed radiance (default: 0.01; 0 = noise-free)")
+    d.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
+    d.add_argument("--passes", type=int, default=2,
+                   help="BRDF / subsurface alternations (relight.fit_with_subsurface; default: 2)")
     add_envmap(d)
-    add_image_size(d, 384, "preview image size in pixels")
+    add_image_size(d, 320, "preview image size in pixels")
     finish_parser(d, run)
 
 
 def run(args) -> int:
     from ..envmap import load_envmap
 
+    at_least("--resolution", args.resolution, 16)
+    at_least("--cameras", args.cameras, 1)
+    at_least("--image-size", args.image_size, 16)
+    at_least("--passes", args.passes, 1)
+    if not 0 <= args.noise < 1:
+        raise CLIError(f"--noise {args.noise}: must be in [0, 1)")
     if args.envmap is not None:
         load_envmap(args.envmap)  # refuse a missing or corrupt map before minutes of simulation and fitting
-    report = run_demo(Path(args.out), resolution=args.resolution, envmap=args.envmap,
-                      image_size=args.image_size, quiet=args.quiet)
-    print(f"wrote {args.out}/ (report.md, report.json, settings.json, *.exr, *.png)")
-    print(f"diffuse albedo error (median) {100 * report['diffuse_albedo_rel_error_median']:.3f}%, "
-          f"roughness error (median) {100 * report['roughness_rel_error_median']:.3f}%, "
-          f"relit PSNR {report['relit_from_fit_vs_image_based_psnr_db']:.1f} dB")
+    report = run_demo(Path(args.out), resolution=args.resolution, envmap=args.envmap, image_size=args.image_size,
+                      cameras=args.cameras, noise=args.noise, seed=args.seed, passes=args.passes, quiet=args.quiet)
+    e = report["errors"]
+    print(f"wrote {args.out}/ (report.md, report.json, preview.png, maps/, truth/)")
+    m = e["mfp_rel_identified"]["median"]
+    mfp = "n/a" if m is None else f"{100 * m:.1f}%"
+    print(f"over {report['texels_seen']} seen texels, median: albedo {100 * e['albedo_rel']['median']:.2f}%, "
+          f"mean free path {mfp} ({100 * report['mfp_identified_fraction']:.0f}% of texel-channels identified), "
+          f"relit PSNR vs truth {report['relit_psnr_db']:.1f} dB")
     return 0
 
 
-def run_demo(out: Path, resolution: int = 128, envmap: Path | None = None, image_size: int = 384,
-             quiet: bool = False) -> dict:
+def demo_cameras(mesh, n: int, size: int):
+    """1: the CLI's front camera; n > 1: a ring at its distance over 80 degrees
+    of azimuth around the front, aimed at the head's centre."""
+    import stage
+
+    from ._common import FRONT_FOV_DEG, front_camera
+
+    front = front_camera(mesh, size)
+    if n == 1:
+        return (front,)
+    v = np.asarray(mesh.vertices, np.float64)
+    c = 0.5 * (v.min(0) + v.max(0))
+    eye = -np.asarray(front.R, np.float64).T @ np.asarray(front.t, np.float64)
+    return stage.camera_ring(n, float(np.hypot(eye[0], eye[2])), elevation_mm=float(c[1]), target=tuple(c),
+                             fov_deg=FRONT_FOV_DEG, width=size, height=size, start_deg=-40.0, arc_deg=80.0)
+
+
+def _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise: float, seed: int, quiet: bool):
+    """The OLAT capture of the truth maps: the GGX lobe in the normal-mapped
+    frame plus Jensen 2001 eq. 5 through the diffusion operator, then the sensor."""
+    import jax
+    import jax.numpy as jnp
+
+    import skin_bssrdf
+    import stage
+
+    widest = skin_bssrdf.Burley(jnp.full((3,), 0.8), jnp.asarray(np.max(np.asarray(truth.mfp), 0) / 2.0))
+    radius = float(np.max(np.asarray(skin_bssrdf.energy_radius(widest, 0.99))))
+    op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), radius)
+    sss = stage.Subsurface(truth.profile(), op, 1.4)
+    with bar(len(cams) * rig.num_lights, "simulate (images)", quiet, leave=True) as b:
+        capture = stage.simulate(truth.frame(surface), rig, cams, truth.brdf(), light_vis, cam_vis, progress=b,
+                                 subsurface=sss)
+    if noise > 0:
+        lit = np.asarray(capture.radiance)[np.asarray(capture.mask)]
+        median = float(np.median(lit[lit > 0]))
+        exposure = 1.0 / (noise * noise * median)  # Poisson: sigma / mean = 1 / sqrt(exposure x radiance)
+        capture = stage.sense(capture, stage.Sensor(exposure=exposure, shot_noise=True), jax.random.PRNGKey(seed))
+    return capture, radius
+
+
+def _angle_deg(a, b) -> np.ndarray:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    c = np.sum(a * b, 1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _stats(x) -> dict:
+    x = np.asarray(x, np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return {"median": None, "p95": None, "samples": 0}  # JSON has no NaN
+    return {"median": float(np.median(x)), "p95": float(np.percentile(x, 95)), "samples": int(x.size)}
+
+
+def _errors(fitted, truth) -> dict:
+    """Per-map errors of the fit against the truth over every seen texel (the
+    demo's samples), flagged or not; roughness over texels with a lobe, mean
+    free path over texels where the fit says it is identified."""
+    from ..materials import BLINN_PHONG, SUBSURFACE
+
+    rel = lambda est, ref: np.abs(np.asarray(est, np.float64) - np.asarray(ref, np.float64)) / np.asarray(  # noqa: E731
+        ref, np.float64)
+    model = np.asarray(fitted.model)
+    lobe = model >= BLINN_PHONG
+    mfp_t = np.asarray(truth.mfp, np.float64)
+    mfp_f = np.asarray(fitted.mfp, np.float64) if fitted.mfp is not None else np.zeros_like(mfp_t)
+    ident = getattr(fitted, "mfp_identified", None)
+    ident = np.zeros_like(mfp_t, bool) if ident is None else np.asarray(ident, bool)
+    e_mfp = rel(mfp_f, mfp_t)
+    out = {
+        "albedo_rel": _stats(rel(fitted.rho_d, truth.rho_d).mean(1)),
+        "specular_rel": _stats(rel(fitted.rho_s, truth.rho_s)[:, 0]),
+        "roughness_rel_lobe_texels": _stats(rel(fitted.alpha[:, :1], truth.alpha[:, :1])[lobe, 0]),
+        "normal_deg": _stats(_angle_deg(fitted.normal, truth.normal)),
+        "mfp_rel_all": _stats(e_mfp.reshape(-1)),
+        "mfp_rel_identified": _stats(e_mfp[ident]),
+    }
+    for c, name in enumerate("rgb"):
+        out[f"mfp_rel_identified_{name}"] = _stats(e_mfp[ident[:, c], c])
+    out["subsurface_texels"] = int(np.sum(model == SUBSURFACE))
+    return out
+
+
+def _psnr(est: np.ndarray, ref: np.ndarray, covered: np.ndarray) -> float:
+    """PSNR (dB) over the covered pixels, peak = the reference's maximum there."""
+    d = (est - ref)[covered]
+    mse = float(np.mean(d * d)) if d.size else 0.0
+    peak = float(np.max(ref[covered])) if d.size else 1.0
+    return float(10 * np.log10(peak * peak / max(mse, 1e-30)))
+
+
+def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_size: int = 320, cameras: int = 3,
+             noise: float = 0.01, seed: int = 0, passes: int = 2, quiet: bool = False) -> dict:
     """Run the whole demo into ``out``; returns the report as a dict."""
-    import brdf
     import stage
     from brdf import atomic_write_text
 
-    from ..envmap import light_weights, load_envmap
-    from ..fitting import _driver as _fit
-    from ..image._preview import dilate, texture_view
-    from ..image._tonemap import to_uint8, tonemap
-    from ..io import write_exr, write_png
-    from ..render import relight_olat
+    from ..envmap import load_envmap
+    from ..fitting import fit_with_subsurface
+    from ..io import head_skin_textures, texture_set, write_texture_set
+    from ..materials import MODELS, skin_maps
+    from ..render import render_view
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    from ._common import envmap_path
+
     envmap = envmap_path(None if envmap is None else str(envmap))
     times = {}
     t0 = time.perf_counter()
     mesh = stage.load_head()
-    surface = stage.texel_samples(mesh, resolution)
+    full = stage.texel_samples(mesh, resolution)
     rig = stage.light_stage_x()
-    camera = stage.look_at((0.0, 0.0, 1300.0), fov_deg=11.0, width=image_size, height=image_size)
-    times["geometry_s"] = time.perf_counter() - t0
+    cams = demo_cameras(mesh, cameras, image_size)
+    times["geometry"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with bar(surface.num_samples * rig.num_lights, "visibility (rays)", quiet, leave=True) as b:
-        light_vis = stage.light_visibility(stage_mesh := mesh, surface, rig, chunk=1 << 18, progress=b)
-    cam_vis = stage.camera_visibility(stage_mesh, surface, [camera])
-    times["visibility_s"] = time.perf_counter() - t0
-    seen = np.nonzero(cam_vis[0])[0]
-    surface = surface.subset(seen)
-    light_vis = light_vis[seen]
-    cam_vis = cam_vis[:, seen]
+    with bar(full.num_samples * rig.num_lights, "visibility (rays)", quiet, leave=True) as b:
+        light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=b)
+    cam_vis = stage.camera_visibility(mesh, full, cams)
+    seen = np.flatnonzero(cam_vis.any(axis=0))
+    surface, light_vis, cam_vis = full.subset(seen), np.asarray(light_vis)[seen], cam_vis[:, seen]
+    times["visibility"] = time.perf_counter() - t0
 
-    rho_true, f0_true, alpha_true = demo_material(surface)
-    truth = brdf.lambert_ggx(rho_true, f0_true, alpha_true)
     t0 = time.perf_counter()
-    with bar(rig.num_lights, "simulate (lights)", quiet, leave=True) as b:
-        capture = stage.simulate(surface, rig, [camera], truth, light_vis, cam_vis, progress=b)
-    times["simulate_s"] = time.perf_counter() - t0
+    skin = skin_maps(surface, head_skin_textures())
+    truth = skin.maps(surface)
+    capture, radius = _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise, seed, quiet)
+    times["simulate"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     with bar(surface.num_samples, "fit (texels)", quiet, leave=True) as b:
-        fitted = _fit.fit(capture, surface, progress=b)
-    times["fit_s"] = time.perf_counter() - t0
+        fitted = fit_with_subsurface(capture, surface, model="auto", normals=True, per="auto", passes=passes,
+                                     regions=skin.regions, radius_mm=radius, progress=b)
+    times["fit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     env = load_envmap(envmap)
-    weights = light_weights(env, rig.directions, rig.center_irradiance)
-    relit_ibr = np.asarray(relight_olat(capture.radiance, weights))[0]
     maps = fitted.maps(surface)
-    refit = stage.simulate(maps.frame(surface), rig, [camera], maps.brdf(include_diffuse=True), light_vis, cam_vis)
-    relit_fit = np.asarray(relight_olat(refit.radiance, weights))[0]
-    times["relight_s"] = time.perf_counter() - t0
+    view_cam = cams[len(cams) // 2]
+    relit_truth = render_view(truth, surface, mesh, view_cam, env, method="rig", rig=rig, background=False)
+    relit_fit = render_view(maps, surface, mesh, view_cam, env, method="rig", rig=rig, background=False)
+    times["relight"] = time.perf_counter() - t0
+    covered = np.asarray(stage.primary_hits(mesh, view_cam, 1)[0])
 
-    # Errors over lit texels (at least 8 valid lights), against the simulated truth.
-    lit = np.asarray(fitted.observed) >= 8
-    rel = lambda est, ref: np.abs(np.asarray(est) - np.asarray(ref)) / np.asarray(ref)  # noqa: E731
-    err_rho = rel(fitted.rho_d, rho_true)[lit]
-    err_alpha = rel(fitted.alpha[:, :1], alpha_true)[lit]
-    mse = float(np.mean((relit_fit - relit_ibr) ** 2))
-    peak = float(np.max(relit_ibr))
+    model = np.asarray(fitted.model)
+    rung = getattr(fitted, "mfp_rung", None)
+    ident = getattr(fitted, "mfp_identified", None)
     report = {
-        "texels_fitted": int(surface.num_samples),
+        "texels_seen": int(surface.num_samples),
+        "texels_on_atlas": int(full.num_samples),
         "lights": int(rig.num_lights),
+        "cameras": len(cams),
         "texel_resolution": int(resolution),
+        "noise_relative_at_median": float(noise),
         "envmap": str(envmap),
-        "diffuse_albedo_rel_error_median": float(np.median(err_rho)),
-        "diffuse_albedo_rel_error_p95": float(np.percentile(err_rho, 95)),
-        "roughness_rel_error_median": float(np.median(err_alpha)),
-        "roughness_rel_error_p95": float(np.percentile(err_alpha, 95)),
-        "fit_failed_fraction": float(np.mean(np.asarray(fitted.failed))),
-        "fit_steps_median": float(np.median(np.asarray(fitted.steps))),
-        "relit_from_fit_vs_image_based_psnr_db": float(10 * np.log10(peak**2 / max(mse, 1e-30))),
-        "timings_s": {k: round(v, 3) for k, v in times.items()},
+        "errors": _errors(fitted, truth),
+        "model_fraction": {MODELS[m]: float(np.mean(model == m)) for m in range(len(MODELS))},
+        "subsurface_rung_fraction": (None if rung is None else
+                                     {k: float(np.mean(np.asarray(rung) == i))
+                                      for i, k in enumerate(("none", "region", "texel"))}),
+        "mfp_identified_fraction": 0.0 if ident is None else float(np.mean(np.asarray(ident))),
+        "flagged_fraction": float(np.mean(np.asarray(fitted.failed))),
+        "relit_psnr_db": _psnr(relit_fit, relit_truth, covered),
+        "relit_pixels": int(covered.sum()),
+        "operator_radius_mm": radius,
+        "timings_s": {k: round(v, 2) for k, v in times.items()},
     }
-
-    # Outputs: texel-space maps (EXR) and camera-view previews (EXR + PNG).
-    valid = np.zeros(surface.resolution, bool)
-    valid.reshape(-1)[np.asarray(surface.texel_index)] = True
-    tex = lambda x: surface.to_texture(np.asarray(x, np.float32))  # noqa: E731
-    maps = {"albedo": tex(fitted.rho_d), "specular": tex(fitted.f0), "roughness": tex(fitted.alpha[:, :1]),
-            "relit_image_based": tex(relit_ibr), "relit_from_fit": tex(relit_fit)}
-    for name, m in maps.items():
-        write_exr(out / f"{name}.exr", m)
-    views = texture_view(mesh, camera, {k: dilate(v, valid) for k, v in maps.items()})
-    exposure = -float(np.log2(max(np.percentile(views["relit_image_based"][views["relit_image_based"] > 0], 99), 1e-6)))
-    for name, img in views.items():
-        if name.startswith("relit"):
-            write_exr(out / f"{name}_view.exr", img)
-            write_png(out / f"{name}_view.png", to_uint8(tonemap(img, exposure=exposure, curve="filmic")))
-        else:
-            shown = np.repeat(img, 3, axis=-1) if img.shape[-1] == 1 else img
-            write_png(out / f"{name}_view.png", to_uint8(tonemap(shown, curve="none")))
-    side = [to_uint8(tonemap(views[k], exposure=exposure, curve="filmic"))
-            for k in ("relit_image_based", "relit_from_fit")]
-    write_png(out / "preview.png", np.concatenate(side, axis=1))
+    t0 = time.perf_counter()
+    _write(out, mesh, surface, truth, maps, view_cam, relit_truth, relit_fit, covered, report,
+           texture_set, write_texture_set)
+    report["timings_s"]["write"] = round(time.perf_counter() - t0, 2)
     settings = {"command": "relight demo", "out": str(out), "resolution": resolution, "envmap": str(envmap),
-                "image_size": image_size, "rig": "light_stage_x", "camera": "look_at (0, 0, 1300) mm, fov 11 deg"}
+                "image_size": image_size, "cameras": len(cams), "noise": noise, "seed": seed, "passes": passes,
+                "rig": "light_stage_x", "textures": "Lee Perry-Smith head scan (Infinite Realities, CC-BY 3.0)"}
     atomic_write_text(out / "settings.json", json.dumps(settings, indent=2))
-    atomic_write_text(out / "report.json", json.dumps(report, indent=2))
+    atomic_write_text(out / "report.json", json.dumps(report, indent=2, allow_nan=False))
     atomic_write_text(out / "report.md", _report_md(report))
     return report
 
 
+def _write(out, mesh, surface, truth, maps, camera, relit_truth, relit_fit, covered, report, texture_set,
+           write_texture_set):
+    """Texture sets (fit and truth), relit EXRs and the preview, columns truth |
+    fit | error: relit (error: |fit - truth| / the 90th-percentile pixel, 0-10%),
+    diffuse albedo (relative error 0-10%), red mean free path (0 to the truth's
+    maximum; relative error 0-50%)."""
+    from ..image._preview import dilate, texture_view
+    from ..image._tonemap import to_uint8, tonemap
+    from ..io import write_exr, write_png
+
+    write_texture_set(out / "maps", texture_set(maps, surface))
+    write_texture_set(out / "truth", texture_set(truth, surface))
+    write_exr(out / "relit_truth.exr", relit_truth)
+    write_exr(out / "relit_fit.exr", relit_fit)
+    # Exposure from the subject: its median pixel to 0.35 before the filmic curve (sun glints would
+    # set a 99th percentile and darken the face).
+    exposure = float(np.log2(0.35 / max(np.median(relit_truth[covered].mean(-1)), 1e-6)))
+    tm = lambda img: to_uint8(tonemap(img, exposure=exposure, curve="filmic"))  # noqa: E731
+
+    def heat(x, vmax, where):
+        import matplotlib
+
+        rgb = matplotlib.colormaps["magma"](np.clip(x / vmax, 0.0, 1.0))[..., :3]
+        return to_uint8(np.where(where[..., None], rgb, 0.0).astype(np.float32))
+
+    err_relit = np.abs(relit_fit - relit_truth).mean(-1) / max(float(np.percentile(relit_truth[covered], 90)), 1e-6)
+    rows = [[tm(relit_truth), tm(relit_fit), heat(err_relit, 0.1, covered)]]
+    valid = np.zeros(surface.resolution, bool)
+    valid.reshape(-1)[np.asarray(surface.texel_index)] = True
+    tex = lambda x: dilate(surface.to_texture(np.asarray(x, np.float32)), valid)  # noqa: E731
+    rho_t, rho_f = np.asarray(truth.rho_d, np.float32), np.asarray(maps.rho_d, np.float32)
+    mfp_t, mfp_f = np.asarray(truth.mfp, np.float32)[:, :1], np.asarray(maps.mfp, np.float32)[:, :1]
+    views = texture_view(mesh, camera, {
+        "on": tex(np.ones_like(mfp_t)), "albedo_t": tex(rho_t), "albedo_f": tex(rho_f),
+        "albedo_e": tex(np.abs(rho_f - rho_t).mean(1, keepdims=True) / np.maximum(rho_t.mean(1, keepdims=True), 1e-6)),
+        "mfp_t": tex(mfp_t), "mfp_f": tex(mfp_f), "mfp_e": tex(np.abs(mfp_f - mfp_t) / np.maximum(mfp_t, 1e-6)),
+    })
+    on = views["on"][..., 0] > 0.5
+    srgb = lambda img: to_uint8(tonemap(np.clip(img, 0, 1), curve="none"))  # noqa: E731
+    vmax = float(np.max(mfp_t))
+    rows.append([srgb(views["albedo_t"]), srgb(views["albedo_f"]), heat(views["albedo_e"][..., 0], 0.1, on)])
+    rows.append([heat(views["mfp_t"][..., 0], vmax, on), heat(views["mfp_f"][..., 0], vmax, on),
+                 heat(views["mfp_e"][..., 0], 0.5, on)])
+    write_png(out / "preview.png", np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0))
+
+
+def _fmt(s: dict, pct: bool = True) -> str:
+    if not s["samples"]:
+        return "n/a | n/a | 0"
+    f = (lambda x: f"{100 * x:.2f}%") if pct else (lambda x: f"{x:.2f}")
+    return f"{f(s['median'])} | {f(s['p95'])} | {s['samples']}"
+
+
 def _report_md(r: dict) -> str:
+    e = r["errors"]
     t = r["timings_s"]
-    return "\n".join([
+    rungs = r["subsurface_rung_fraction"]
+    lines = [
         "# relight demo report", "",
-        f"{r['texels_fitted']} texels seen by the camera, {r['lights']} lights (ICT Light Stage X), "
-        f"texel grid {r['texel_resolution']}^2, environment `{Path(r['envmap']).name}`.", "",
-        "| quantity (fit against the simulated truth, noise-free) | median | 95th percentile |",
-        "| --- | --- | --- |",
-        f"| diffuse albedo relative error | {r['diffuse_albedo_rel_error_median']:.2e} | "
-        f"{r['diffuse_albedo_rel_error_p95']:.2e} |",
-        f"| roughness relative error | {r['roughness_rel_error_median']:.2e} | {r['roughness_rel_error_p95']:.2e} |",
+        f"The bundled head scan with its own skin textures (Lee Perry-Smith, Infinite Realities, CC-BY 3.0) and "
+        f"spatially varying subsurface scattering, {r['lights']} lights (ICT Light Stage X), {r['cameras']} cameras, "
+        f"texel grid {r['texel_resolution']}^2 ({r['texels_seen']} of {r['texels_on_atlas']} atlas texels seen by "
+        f">= 1 camera), shot noise {100 * r['noise_relative_at_median']:.1f}% at the median radiance, "
+        f"environment `{Path(r['envmap']).name}`.", "",
+        "Errors of the fit against the truth maps, over every seen texel (flagged ones included) unless the row "
+        "says otherwise; `samples` counts texels (texel-channels for the mean free path).", "",
+        "| map | median | 95th percentile | samples |", "| --- | --- | --- | --- |",
+        f"| diffuse albedo, relative (mean over RGB) | {_fmt(e['albedo_rel'])} |",
+        f"| specular F0, relative | {_fmt(e['specular_rel'])} |",
+        f"| roughness, relative (texels with a specular lobe) | {_fmt(e['roughness_rel_lobe_texels'])} |",
+        f"| shading normal, degrees | {_fmt(e['normal_deg'], pct=False)} |",
+        f"| mean free path, relative (all texel-channels) | {_fmt(e['mfp_rel_all'])} |",
+        f"| mean free path, relative (identified texel-channels) | {_fmt(e['mfp_rel_identified'])} |",
+        *[f"| mean free path {c.upper()}, relative (identified) | {_fmt(e[f'mfp_rel_identified_{c}'])} |"
+          for c in "rgb"],
         "",
-        f"Failed samples: {100 * r['fit_failed_fraction']:.2f}%. Median LM steps: {r['fit_steps_median']:.0f}.",
-        f"Relit from the fitted maps vs image-based relighting of the capture: "
-        f"PSNR {r['relit_from_fit_vs_image_based_psnr_db']:.1f} dB.", "",
-        "| stage | seconds |", "| --- | --- |",
-        *[f"| {k[:-2]} | {v:.2f} |" for k, v in t.items()], "",
-    ])
+        "Model map: " + ", ".join(f"{k} {100 * v:.1f}%" for k, v in r["model_fraction"].items()) + ".",
+    ]
+    if rungs is not None:
+        lines.append("Subsurface rungs: " + ", ".join(f"{k} {100 * v:.1f}%" for k, v in rungs.items())
+                     + f"; mean free path identified on {100 * r['mfp_identified_fraction']:.1f}% of texel-channels.")
+    lines += [
+        f"Flagged texels: {100 * r['flagged_fraction']:.2f}%.",
+        f"Relit (fitted maps vs truth maps, same renderer, same map, view of the middle camera, "
+        f"{r['relit_pixels']} head pixels): PSNR {r['relit_psnr_db']:.1f} dB.", "",
+        "| stage | seconds |", "| --- | --- |", *[f"| {k} | {v:.1f} |" for k, v in t.items()], "",
+    ]
+    return "\n".join(lines)

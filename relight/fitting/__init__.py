@@ -11,5 +11,7 @@ from ._driver import SOLVERS as SOLVERS
 from ._driver import Fit as Fit
 from ._driver import fit as fit
 from ._driver import rig_alpha_floor as rig_alpha_floor
+from ._joint import fit_with_subsurface as fit_with_subsurface
+from ._joint import subsurface_radiance as subsurface_radiance
 from ._subsurface import fit_subsurface as fit_subsurface
 from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP
