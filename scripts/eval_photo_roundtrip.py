@@ -41,18 +41,9 @@ FACE = ROOT.parent / "shared" / "data" / "meshes" / "mediapipe_canonical_face.ob
 
 def _cameras(mesh, n: int, size: int):
     """1: the CLI's front camera; n > 1: a ring at its distance over 80 degrees."""
-    import stage
-    from relight.cli._common import FRONT_FOV_DEG, front_camera
+    from relight.cli._common import front_ring
 
-    front = front_camera(mesh, size)
-    if n == 1:
-        return (front,)
-    v = np.asarray(mesh.vertices, np.float64)
-    c = 0.5 * (v.min(0) + v.max(0))
-    centre = -np.asarray(front.R, np.float64).T @ np.asarray(front.t, np.float64)
-    radius = float(np.hypot(centre[0], centre[2]))
-    return stage.camera_ring(n, radius, elevation_mm=float(c[1]), target=tuple(c), fov_deg=FRONT_FOV_DEG,
-                             width=size, height=size, start_deg=-40.0, arc_deg=80.0)
+    return front_ring(mesh, n, size)
 
 
 def run_scene(name, mesh_args, mesh, rig_arg, n_cams, args, work: Path) -> dict:

@@ -201,6 +201,20 @@ def front_camera(mesh: stage.Mesh, size: int) -> stage.Camera:
     return stage.look_at((c[0], c[1], c[2] + dist), tuple(c), fov_deg=FRONT_FOV_DEG, width=size, height=size)
 
 
+def front_ring(mesh: stage.Mesh, n: int, size: int) -> tuple[stage.Camera, ...]:
+    """1: :func:`front_camera`; n > 1: ``stage.camera_ring`` of n cameras at its
+    distance over 80 degrees of azimuth around the front, aimed at the mesh's
+    centre (the demo's and the photo round trip's several views)."""
+    front = front_camera(mesh, size)
+    if n == 1:
+        return (front,)
+    v = np.asarray(mesh.vertices, np.float64)
+    c = 0.5 * (v.min(0) + v.max(0))
+    eye = -np.asarray(front.R, np.float64).T @ np.asarray(front.t, np.float64)
+    return stage.camera_ring(n, float(np.hypot(eye[0], eye[2])), elevation_mm=float(c[1]), target=tuple(c),
+                             fov_deg=FRONT_FOV_DEG, width=size, height=size, start_deg=-40.0, arc_deg=80.0)
+
+
 def parse_cameras(spec: str | None, mesh: stage.Mesh, size: int, default=None) -> tuple[stage.Camera, ...]:
     """``front`` (see :func:`front_camera`) or a camera file (``stage.load_cameras``:
     ``stage.save_cameras``'s, or a capture folder's ``cameras.json``, or a folder

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import CLIError, add_envmap, add_image_size, add_out, at_least, bar, finish_parser
+from ._common import CLIError, add_envmap, add_image_size, add_out, at_least, bar, finish_parser, front_ring
 
 # Shot noise: this many photo-electrons at the median observed radiance (1% relative noise there).
 _ELECTRONS_AT_MEDIAN = 1.0e4
@@ -58,23 +58,6 @@ def run(args) -> int:
           f"mean free path {mfp} ({100 * report['mfp_identified_fraction']:.0f}% of texel-channels identified), "
           f"relit PSNR vs truth {report['relit_psnr_db']:.1f} dB")
     return 0
-
-
-def demo_cameras(mesh, n: int, size: int):
-    """1: the CLI's front camera; n > 1: a ring at its distance over 80 degrees
-    of azimuth around the front, aimed at the head's centre."""
-    import stage
-
-    from ._common import FRONT_FOV_DEG, front_camera
-
-    front = front_camera(mesh, size)
-    if n == 1:
-        return (front,)
-    v = np.asarray(mesh.vertices, np.float64)
-    c = 0.5 * (v.min(0) + v.max(0))
-    eye = -np.asarray(front.R, np.float64).T @ np.asarray(front.t, np.float64)
-    return stage.camera_ring(n, float(np.hypot(eye[0], eye[2])), elevation_mm=float(c[1]), target=tuple(c),
-                             fov_deg=FRONT_FOV_DEG, width=size, height=size, start_deg=-40.0, arc_deg=80.0)
 
 
 def _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise: float, seed: int, quiet: bool):
@@ -174,7 +157,7 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
     mesh = stage.load_head()
     full = stage.texel_samples(mesh, resolution)
     rig = stage.light_stage_x()
-    cams = demo_cameras(mesh, cameras, image_size)
+    cams = front_ring(mesh, cameras, image_size)
     times["geometry"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -100,3 +100,24 @@ def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
     assert np.all(np.asarray(g.model)[lam] == np.asarray(f.model)[lam])
     np.testing.assert_array_equal(np.asarray(g.rho_d)[lam], np.asarray(f.rho_d)[lam])
     assert np.all(np.asarray(g.mfp)[lam] == 0) and np.all(np.isinf(np.asarray(g.mfp_sigma)[lam]))
+
+
+def test_spread_fraction_is_burleys_cdf_beyond_the_texel(sphere):
+    """relight.fitting._subsurface.spread_fraction: the energy fraction of the
+    Christensen-Burley profile beyond a sample's own disc (r = sqrt(area /
+    pi)) is e^{-r/d}/4 + 3 e^{-r/(3d)}/4 (their eq. 11) with d = mfp / s(A);
+    it grows with the mean free path and shrinks with the texel."""
+    from relight.fitting._subsurface import spread_fraction
+
+    surface = sphere[0]
+    P = surface.num_samples
+    A = np.full((P, 3), 0.6)
+    mfp = np.tile([0.2, 1.0, 3.0], (P, 1))
+    f = spread_fraction(surface, A, mfp)
+    prof = skin_bssrdf.Burley.from_mean_free_path(jnp.asarray(A), jnp.asarray(mfp), config="dmfp")
+    d = np.asarray(prof.d, np.float64)
+    r = np.sqrt(np.asarray(surface.area, np.float64) / np.pi)[:, None]
+    np.testing.assert_allclose(f, np.exp(-r / d) / 4 + 0.75 * np.exp(-r / (3 * d)), rtol=1e-6)
+    assert np.all(np.diff(f, axis=1) > 0) and np.all((f > 0) & (f < 1))
+    coarse = stage.Surface(**{**surface.__dict__, "area": surface.area * 4.0})
+    assert np.all(spread_fraction(coarse, A, mfp) < f)

@@ -245,16 +245,11 @@ def test_round_trip_on_the_head_under_the_light_stage_x_with_three_cameras(tmp_p
     flagged; 96 px / 64 texels: 0.007 / 0.046, docs/RESULTS.md): median 0.03,
     p90 0.25, alpha median 0.06, flagged < 3%."""
     from relight.cli import main
-    from relight.cli._common import FRONT_FOV_DEG, demo_material, front_camera
+    from relight.cli._common import demo_material, front_ring
 
     mesh = stage.load_head()
     size = 72
-    front = front_camera(mesh, size)
-    v = np.asarray(mesh.vertices, np.float64)
-    c = 0.5 * (v.min(0) + v.max(0))
-    eye = -np.asarray(front.R, np.float64).T @ np.asarray(front.t, np.float64)
-    cams = stage.camera_ring(3, float(np.hypot(eye[0], eye[2])), elevation_mm=float(c[1]), target=tuple(c),
-                             fov_deg=FRONT_FOV_DEG, width=size, height=size, start_deg=-40.0, arc_deg=80.0)
+    cams = front_ring(mesh, 3, size)
     cams_file = stage.save_cameras(tmp_path / "cameras.json", cams)
     photos = tmp_path / "photos"
     assert main(["simulate", "--space", "image", "--mesh", "head", "--rig", "lsx", "--camera", str(cams_file),
