@@ -13,5 +13,9 @@ from ._driver import fit as fit
 from ._driver import rig_alpha_floor as rig_alpha_floor
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
+from ._parts import PartsFingerprintError as PartsFingerprintError
+from ._parts import PartsIncompleteError as PartsIncompleteError
+from ._parts import fit_parts as fit_parts
+from ._parts import merge_parts as merge_parts
 from ._subsurface import fit_subsurface as fit_subsurface
 from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP
