@@ -98,6 +98,9 @@ def add_parser(sub) -> None:
     p.add_argument("--eta", type=float, default=None,
                    help="with --subsurface: relative index of refraction of the Fresnel transmittances (default: "
                         f"the capture's metadata.subsurface.eta, else {DEFAULT_ETA})")
+    p.add_argument("--passes", type=int, default=1,
+                   help="with --subsurface: BRDF / subsurface alternations (relight.fit_with_subsurface: the lobe "
+                        "refitted against the predicted subsurface radiance; default: 1, the plain sequence)")
     add_envmap(p, "environment map for the Mitsuba scene")
     finish_parser(p, run)
 
@@ -226,6 +229,10 @@ def run(args) -> int:
 def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
     """CLIError on --subsurface / --regions / --eta that do not go together or
     with this kind of input (subsurface fitting takes texel-space captures)."""
+    if args.passes < 1:
+        raise CLIError(f"--passes {args.passes}: must be >= 1")
+    if args.subsurface == "off" and args.passes != 1:
+        raise CLIError("--passes: needs --subsurface region|texel|auto")
     if args.subsurface == "off" and (args.regions is not None or args.eta is not None):
         raise CLIError(f"{'--regions' if args.regions is not None else '--eta'}: needs --subsurface "
                        "region|texel|auto")
@@ -330,8 +337,15 @@ def _fit_subsurface(args, capture, surface, fitted, metadata: dict):
         regions = _read_regions(args.regions, surface)
         kw["regions"] = regions
     with bar(None, "fit subsurface", args.quiet) as b:
-        g = relight.fit_subsurface(capture, surface, fitted, progress=b, **kw)
-    sss = {"mode": args.subsurface, "eta": eta,
+        if args.passes > 1:
+            fo = fit_kwargs(relight.fit, args.method)
+            rest = {k: v for k, v in kw.items() if k != "per"}
+            g = relight.fit_with_subsurface(capture, surface, model=args.model or "ggx", normals=args.normals,
+                                            per=args.subsurface, passes=args.passes, first=fitted,
+                                            fit_options=fo, progress=b, **rest)
+        else:
+            g = relight.fit_subsurface(capture, surface, fitted, progress=b, **kw)
+    sss = {"mode": args.subsurface, "eta": eta, "passes": int(args.passes),
            "eta_from": "--eta" if args.eta is not None else "capture" if recorded is not None else "default",
            "regions": None if regions is None else {"file": str(Path(args.regions).resolve()),
                                                     "count": int(regions.max()) + 1}}

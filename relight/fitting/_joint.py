@@ -99,20 +99,26 @@ def _everywhere(out: Fit, labels: np.ndarray, rho_fill) -> Fit:
 def fit_with_subsurface(capture: stage.Capture, surface: stage.Surface, *, model: str = "auto", normals: bool = True,
                         per: str = "auto", passes: int = 2, regions=None, eta: float = 1.4,
                         mfp_range=(0.05, 8.0), radius_mm: float | None = None, fit_options: dict | None = None,
-                        subsurface_options: dict | None = None, progress=None) -> Fit:
+                        subsurface_options: dict | None = None, first: Fit | None = None, progress=None) -> Fit:
     """The BRDF ladder and the subsurface rung fitted by alternation (module
     docstring): ``relight.fit(model, normals)``, ``relight.fit_subsurface(per)``,
     then ``passes - 1`` rounds of (lobe refit on the capture minus the
     predicted subsurface radiance, subsurface refit). ``passes=1`` is the plain
     sequence. ``fit_options`` / ``subsurface_options``: further keywords of
-    the two fits. Returns the final ``Fit`` (rho_d: the profile albedo on the
-    subsurface rung, the local Lambert albedo elsewhere)."""
+    the two fits. ``first``: a ``relight.fit`` of this capture already made
+    with these ``model`` / ``normals`` / options (step 1 is skipped). Returns
+    the final ``Fit`` (rho_d: the profile albedo on the subsurface rung, the
+    local Lambert albedo elsewhere)."""
     if not (isinstance(passes, int) and passes >= 1):
         raise ValueError(f"fit_with_subsurface: passes must be an int >= 1, got {passes!r}")
     fo = dict(fit_options or {})
     so = dict(subsurface_options or {})
     radius = default_radius_mm(mfp_range[1]) if radius_mm is None else float(radius_mm)
-    first = fit(capture, surface, model=model, normals=normals, progress=progress, **fo)
+    if first is None:
+        first = fit(capture, surface, model=model, normals=normals, progress=progress, **fo)
+    elif first.rho_d.shape[0] != surface.num_samples:
+        raise ValueError(f"fit_with_subsurface: first has {first.rho_d.shape[0]} samples, the surface "
+                         f"{surface.num_samples}")
     out = fit_subsurface(capture, surface, first, per=per, regions=regions, eta=eta, mfp_range=mfp_range,
                          radius_mm=radius, progress=progress, **so)
     frame = first.maps(surface).frame(surface)

@@ -118,6 +118,23 @@ def test_fit_recovers_the_preset_mean_free_path(sss):
     assert (maps / "mean_free_path.png").is_file() and "## Subsurface scattering" in (maps / "report.md").read_text()
 
 
+def test_a_second_pass_removes_the_lobe_bias(sss, tmp_path):
+    """`relight fit --subsurface region --passes 2` (relight.fit_with_subsurface):
+    the lobe refitted against the predicted subsurface radiance no longer takes
+    the blur, so the preset comes back closer than the one-pass fit's -7 / -13
+    / -21% (test above): measured 3.3 / 8.7 / 13.1%. Bar: every channel within
+    15% and better than one pass; the report records the passes."""
+    _, _, cap, maps, _, _ = sss
+    one = np.array(json.loads((maps / "report.json").read_text())["subsurface"]["mfp_median_mm"])
+    out = tmp_path / "two"
+    assert main(["fit", str(cap), "--subsurface", "region", "--passes", "2", "--out", str(out), "--quiet"]) == 0
+    ss = json.loads((out / "report.json").read_text())["subsurface"]
+    two = np.array(ss["mfp_median_mm"])
+    e1, e2 = np.abs(one - SKIN1_MFP) / SKIN1_MFP, np.abs(two - SKIN1_MFP) / SKIN1_MFP
+    assert ss["passes"] == 2
+    assert np.all(e2 < 0.15) and np.all(e2 < e1)
+
+
 def _render(src, out, *extra):
     assert main(["render", str(src), "--out", str(out), "--quiet", *extra]) == 0
     return read_exr(out / "relit.exr"), json.loads((out / "settings.json").read_text())
@@ -234,6 +251,8 @@ def test_bad_subsurface_is_refused(sss, tmp_path, capsys, extra, message):
     (["--subsurface", "texel", "--regions", "labels.png"], "regions apply to region|auto"),
     (["--subsurface", "region", "--regions", "missing.png"], "no such label map"),
     (["--subsurface", "region", "--eta", "0.9"], "--eta 0.9"),
+    (["--passes", "2"], "--passes: needs --subsurface"),
+    (["--subsurface", "region", "--passes", "0"], "--passes 0"),
 ])
 def test_bad_fit_subsurface_flags_are_refused(sss, tmp_path, capsys, extra, message):
     _, _, cap, _, _, _ = sss
