@@ -299,9 +299,8 @@ def _chunks_of(index, size):
     """Chunks of ``index``, each padded (repeating its last entry) to ``size``:
     one shape for every call of a fit (straggler rounds and ladder subsets
     included), so the solver compiles once per rung."""
-    chunk = size
-    for s in range(0, len(index), chunk):
-        idx = index[s:s + chunk]
+    for s in range(0, len(index), size):
+        idx = index[s:s + size]
         n = len(idx)
         if n < size:
             idx = np.concatenate([idx, np.full(size - n, idx[-1])])
@@ -580,11 +579,7 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
     # One observation count for every chunk of every block (the largest any
     # sample has, rounded up) so the solver compiles once: a pass over the mask only.
     n_valid = _valid_counts(capture, kind, P, block)
-    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
-    # One padded chunk shape for the whole fit (P, not the block, sets it), a multiple of the devices.
-    size = -(-_chunk_size(P, chunk) // len(devs)) * len(devs)
-    opts = dict(size=size, rounds=rounds, steps_per_round=steps_per_round, solver=solver, put=_placer(devs),
-                cauchy=float(cauchy) if loss == "cauchy" else None)
+    n_keep, opts = _solve_plan(P, n_valid, chunk, devs, rounds, steps_per_round, solver, loss, cauchy)
     kinds = {"f": dt, "i": np.int32, "o": np.float32}
     out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in _FIELDS.items()}
     phases = _Phases(progress)
@@ -600,6 +595,23 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
     # A refit phase whose rung the last block did not use learns its total only now.
     for k in rungs if len(rungs) > 1 else ():
         phases.finish(f"fit {MODELS[k]}", chosen[k])
+    return fit_from_arrays(out, dt, floor, solver_name)
+
+
+def _solve_plan(P, n_valid, chunk, devs, rounds, steps_per_round, solver, loss, cauchy):
+    """(n_keep, opts): the packed observation count (the most any sample has,
+    rounded up to 32) and the solver options with one padded chunk shape for
+    the whole fit (P, not the block, sets it; a multiple of the devices), so
+    every block and every process compiles the same programs."""
+    n_keep = int(-(-max(int(np.max(n_valid)), 1) // 32) * 32)
+    size = -(-_chunk_size(P, chunk) // len(devs)) * len(devs)
+    opts = dict(size=size, rounds=rounds, steps_per_round=steps_per_round, solver=solver, put=_placer(devs),
+                cauchy=float(cauchy) if loss == "cauchy" else None)
+    return n_keep, opts
+
+
+def fit_from_arrays(out: dict, dt, floor: float, solver_name: str) -> Fit:
+    """A ``Fit`` from its per-sample NumPy arrays (the ``on_block`` fields, [P, ...])."""
     f = lambda x: jnp.asarray(x, dt)  # noqa: E731
     i32 = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
     return Fit(rho_d=f(out["rho_d"]), rho_s=f(out["rho_s"]), alpha=f(out["alpha"]), normal=f(out["normal"]),

@@ -35,15 +35,7 @@ import stage
 
 from ..materials._maps import SUBSURFACE
 from ._driver import Fit, fit
-from ._subsurface import fit_subsurface
-
-
-def default_radius_mm(mfp_max: float, channels: int = 3) -> float:
-    """The diffusion operator's neighbour radius (mm): 99% of the energy of the
-    widest Burley profile a mean free path up to ``mfp_max`` (mm) gives (what
-    :func:`relight.fit_subsurface` uses by default)."""
-    widest = skin_bssrdf.Burley(jnp.full((channels,), 0.5), jnp.full((channels,), float(mfp_max) / 3.5))
-    return float(np.max(np.asarray(skin_bssrdf.energy_radius(widest, 0.99))))
+from ._subsurface import default_radius_mm, fit_subsurface
 
 
 def subsurface_radiance(capture: stage.Capture, surface: stage.Surface, fitted: Fit, *, eta: float = 1.4,

@@ -116,10 +116,8 @@ class _Plan:
             self.n_valid[s:e] = np.sum(m, axis=(0, 1))
             _hash_leaves(h, (rad, m))
             del rad, m
-        self.n_keep = int(-(-max(int(self.n_valid.max()), 1) // 32) * 32)
-        size = -(-_d._chunk_size(P, kw["chunk"]) // len(devs)) * len(devs)
-        self.opts = dict(size=size, rounds=kw["rounds"], steps_per_round=kw["steps_per_round"], solver=solver,
-                         put=_d._placer(devs), cauchy=float(kw["cauchy"]) if kw["loss"] == "cauchy" else None)
+        self.n_keep, self.opts = _d._solve_plan(P, self.n_valid, kw["chunk"], devs, kw["rounds"],
+                                                kw["steps_per_round"], solver, kw["loss"], kw["cauchy"])
         self.settings = _settings(kw, block, len(devs), self.dt)
         self.surface_hash = _surface_fingerprint(surface)
         _hash_leaves(h, (self.rig, self.cameras))
@@ -290,10 +288,4 @@ def merge_parts(folder, surface) -> Fit:
     # The surface last: its hash is the one costly check, worth it only for a complete set.
     if _surface_fingerprint(surface) != man.get("surface"):
         raise PartsFingerprintError(f"{folder}: this set was fitted on another surface (same sample count)")
-    f = lambda x: jnp.asarray(x, dt)  # noqa: E731
-    i32 = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
-    return Fit(rho_d=f(out["rho_d"]), rho_s=f(out["rho_s"]), alpha=f(out["alpha"]), normal=f(out["normal"]),
-               tangent=f(out["tangent"]), model=i32(out["model"]), residual=f(out["residual"]),
-               heldout=f(out["heldout"]), result=i32(out["result"]), steps=i32(out["steps"]),
-               observed=jnp.asarray(out["observed"], jnp.float32), uncertainty=f(out["uncertainty"]),
-               alpha_floor=float(man["alpha_floor"]), solver=man["solver"])
+    return _d.fit_from_arrays(out, dt, float(man["alpha_floor"]), man["solver"])

@@ -195,6 +195,14 @@ def spread_fraction(surface: stage.Surface, albedo, mfp) -> np.ndarray:
     return tail / np.maximum(total, 1e-30)
 
 
+def default_radius_mm(mfp_max: float, channels: int = 3) -> float:
+    """The diffusion operator's neighbour radius (mm): 99% of the energy of the
+    widest Burley profile a mean free path up to ``mfp_max`` (mm) gives (what
+    :func:`relight.fit_subsurface` uses by default)."""
+    widest = skin_bssrdf.Burley(jnp.full((channels,), 0.5), jnp.full((channels,), float(mfp_max) / 3.5))
+    return float(np.max(np.asarray(skin_bssrdf.energy_radius(widest, 0.99))))
+
+
 def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, *, per: str = "region", regions=None,
                    mfp_range=(0.05, 8.0), grid: int = 8, refine: int = 8, iterations: int = 2,
                    search_lights: int = 48, eta: float = 1.4, radius_mm: float | None = None,
@@ -259,8 +267,7 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
     y, valid, E, wo, lam = _terms(capture, surface, fitted, eta)
     vm = valid[..., None].astype(np.float64)  # [V, L, P, 1]
     if radius_mm is None:
-        widest = skin_bssrdf.Burley(jnp.full((C,), 0.5), jnp.full((C,), hi / 3.5))
-        radius_mm = float(np.max(np.asarray(skin_bssrdf.energy_radius(widest, 0.99))))
+        radius_mm = default_radius_mm(hi, C)
     op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), radius_mm,
                                              max_neighbours=max_neighbours)
     # The outgoing factor F_t(cos_o) / pi per view and sample: the views reduce exactly (_subsurface_texel).

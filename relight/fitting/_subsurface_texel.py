@@ -55,7 +55,7 @@ import optimistix as optx
 
 import skin_bssrdf
 
-from ._driver import Fit
+from ._driver import Fit, _chunks_of
 
 # Standard deviation (in ln mfp) of the prior pulling each texel's mean free
 # path toward its region's value. Its residual is s (ln mfp - ln mfp_region) /
@@ -250,15 +250,6 @@ def chunk_size(n_texels: int, L: int, K: int, C: int) -> int:
     return int(max(1, min(n, 1 << max(int(n_texels - 1).bit_length(), 0))))
 
 
-def _chunks(index, size):
-    for s in range(0, len(index), size):
-        idx = index[s:s + size]
-        n = len(idx)
-        if n < size:
-            idx = np.concatenate([idx, np.full(size - n, idx[-1])])
-        yield idx, n
-
-
 def _normalised(data: TexelData, lights, unit, idx):
     """Per-chunk arrays over the lights: a [n, L], ybar / c0 [n, L, C], count [n, L], normalised by unit."""
     a = data.a[idx][:, lights]
@@ -302,7 +293,7 @@ def fit_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wl, ln_m
     active = np.arange(len(texels))
     per_round = min(_STEPS_PER_ROUND, max_steps)
     for _ in range(-(-max_steps // per_round)):  # max_steps rounded up to whole rounds
-        for sel, m in _chunks(active, n):
+        for sel, m in _chunks_of(active, n):
             idx = texels[sel]
             a, ybar, c0, cnt = _normalised(data, lights, unit, idx)
             uu, cc, kk = solve_chunk(jnp.asarray(idx), Es, geo.index, geo.weight, geo.distance, geo.rho[idx],
@@ -332,7 +323,7 @@ def eval_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wf, wh,
     out = {k: np.zeros((len(texels), C)) for k in names}
     out["err_h"] = np.zeros((len(texels), C, len(lights)))
     pos = np.arange(len(texels))
-    for sel, m in _chunks(pos, n):
+    for sel, m in _chunks_of(pos, n):
         idx = texels[sel]
         a, ybar, c0, cnt = _normalised(data, lights, unit, idx)
         f = lambda x: jnp.asarray(x, dt)  # noqa: E731
