@@ -4,12 +4,16 @@ float64 or int -> float mixing), warnings are errors, and every function in brdf
 skin_bssrdf, stage and relight has its jaxtyping annotations checked at call time
 (pyproject's --jaxtyping-packages, with the checker in tests/helpers.py)."""
 
+import os
 from pathlib import Path
 
 import jax
 import pytest
 
 import tests.helpers  # noqa: F401  (the --jaxtyping-packages checker, tests.helpers.typechecker, must be loaded)
+
+# CLI tests must not fill the user's compilation cache (~/.cache/relight/jax); tests of the cache set their own.
+os.environ.setdefault("RELIGHT_CACHE_DIR", "off")
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")

@@ -12,6 +12,12 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 
 Misuse prints a usage line and exits 2; a bad input file prints
 ``relight <command>: error: <file>: <problem>`` and exits 1 (no traceback).
+
+Every command runs with JAX's persistent compilation cache on, in
+``--cache-dir DIR``, else ``$RELIGHT_CACHE_DIR``, else
+``$XDG_CACHE_HOME/relight/jax`` (``~/.cache/relight/jax``); ``off`` (or an
+empty value) turns it off. A second run of a command then loads the solver
+programs instead of compiling them (docs/figures/compile_cache.md).
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from . import fit as _cli_fit
 from . import info as _cli_info
 from . import render as _cli_render
 from . import simulate as _cli_simulate
-from ._common import CLIError
+from ._common import CLIError, cache_dir, compile_cache
 
 # The commands in the order ``relight --help`` lists them; each module has
 # ``add_parser(subparsers)`` and ``run(args)`` and imports no other command.
@@ -35,6 +41,9 @@ COMMANDS = (_cli_simulate, _cli_fit, _cli_render, _cli_convert, _cli_demo, _cli_
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="relight",
                                 description="Light-stage simulation, reflectance fitting and relighting.")
+    p.add_argument("--cache-dir", default=None, metavar="DIR",
+                   help="JAX's persistent compilation cache folder ('off': none); default: $RELIGHT_CACHE_DIR, "
+                        "else $XDG_CACHE_HOME/relight/jax (~/.cache/relight/jax)")
     sub = p.add_subparsers(dest="command", metavar="<command>")
     for command in COMMANDS:
         command.add_parser(sub)
@@ -48,7 +57,9 @@ def main(argv=None) -> int:
         parser.print_usage(sys.stderr)
         return 2
     try:
-        return args.func(args)
+        # Before the command compiles anything: the cache is looked up at each compile.
+        with compile_cache(cache_dir(args.cache_dir), args.command):
+            return args.func(args)
     except (CLIError, OSError, ValueError) as exc:
         # OSError covers FileNotFoundError / FileExistsError / PermissionError;
         # ValueError covers relight.io.ImageFormatError. Messages name the file.

@@ -7,11 +7,21 @@ a Mitsuba 3 scene, previews and a report.
 ``relight.fit_subsurface`` after the BRDF fit: the diffuse mean free path
 (mm, per channel; per region of ``--regions``, per texel, or the held-out
 ladder of none / region / texel) and the profile albedo; the map set then
-carries mean_free_path.exr and model.exr = subsurface where chosen."""
+carries mean_free_path.exr and model.exr = subsurface where chosen.
+
+Streaming (docs/scaling.md): a texel-space capture folder or store is not
+loaded; ``relight.fitting.fit_parts`` reads it ``--block`` texels at a time
+(``relight.io.open_texel_capture``) on ``--devices`` and writes each finished
+block to ``OUT/.parts/`` at once; ``relight.fitting.merge_parts`` then makes
+the fit. ``--resume`` keeps the parts of an earlier run of the same fit (a
+killed run, or a finished one: no block is refitted); without it they are
+deleted first. ``--subsurface`` needs the whole capture in memory (its
+operator couples texels), so it loads it as before."""
 
 from __future__ import annotations
 
 import inspect
+import shutil
 import time
 from pathlib import Path
 
@@ -27,6 +37,7 @@ from ..io import (
     is_map_set,
     is_photo_capture,
     load_texel_capture,
+    open_texel_capture,
     photos_to_texels,
     read_maps,
     read_photo_capture,
@@ -61,6 +72,8 @@ FIT_MODELS = MODELS[:SUBSURFACE] + ("auto",)
 SUBSURFACE_MODES = ("off", "region", "texel", "auto")
 # The relative index of the subsurface Fresnel transmittances when the capture does not record one (skin's).
 DEFAULT_ETA = 1.4
+# The result-set folder of fit_parts inside --out: hidden, it is not part of the map set.
+PARTS = ".parts"
 
 
 def add_parser(sub) -> None:
@@ -101,8 +114,34 @@ def add_parser(sub) -> None:
     p.add_argument("--passes", type=int, default=1,
                    help="with --subsurface: BRDF / subsurface alternations (relight.fit_with_subsurface: the lobe "
                         "refitted against the predicted subsurface radiance; default: 1, the plain sequence)")
+    p.add_argument("--block", type=int, default=4096, metavar="N",
+                   help="texels read, fitted and written per block: the memory knob (about 13-40 KiB per texel of "
+                        "a block); any N gives the same maps (default 4096)")
+    p.add_argument("--devices", default="all", metavar="N|all",
+                   help="JAX devices to split each solver chunk over: the first N local devices, or all (default)")
+    p.add_argument("--resume", action="store_true",
+                   help=f"keep the finished blocks of an earlier run of this fit in OUT/{PARTS}/ (a killed run; a "
+                        "finished one costs no fitting); refused if the capture, surface or a setting changed. "
+                        f"Without it, OUT/{PARTS}/ is cleared and every block is fitted")
     add_envmap(p, "environment map for the Mitsuba scene")
     finish_parser(p, run)
+
+
+def parse_devices(spec: str):
+    """``--devices``: "all" -> None (every local device), N -> N (1..the local device count); CLIError else."""
+    import jax
+
+    n_local = len(jax.local_devices())
+    if str(spec).strip().lower() == "all":
+        return None
+    try:
+        n = int(spec)
+    except ValueError:
+        raise CLIError(f"--devices {spec}: an integer N or 'all'") from None
+    if not 1 <= n <= n_local:
+        raise CLIError(f"--devices {spec}: must be between 1 and the {n_local} local device(s) "
+                       f"({jax.default_backend()}), or 'all'")
+    return n
 
 
 def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = False) -> dict:
@@ -128,6 +167,8 @@ def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = Fa
 
 
 def run(args) -> int:
+    import jax
+
     import relight
 
     from ..envmap import load_envmap
@@ -136,6 +177,8 @@ def run(args) -> int:
     envmap = envmap_path(args.envmap)
     load_envmap(envmap)  # refuse a missing or corrupt map before the fit, not after
     kwargs = fit_kwargs(relight.fit, args.method, args.model, args.normals)
+    at_least("--block", args.block, 1)
+    devices = parse_devices(args.devices)
     times = {}
     t0 = time.perf_counter()
     capture_dir = Path(args.capture)
@@ -143,7 +186,7 @@ def run(args) -> int:
     photos = not diligent and is_photo_capture(capture_dir)
     _check_subsurface_flags(args, capture_dir, "diligent" if diligent else "photos" if photos else "texel")
     if diligent:
-        return _run_diligent(args, capture_dir, kwargs)
+        return _run_diligent(args, capture_dir, {**kwargs, "block": args.block, "devices": devices})
     if args.subsample != 1:
         raise CLIError("--subsample applies to DiLiGenT folders only")
     metadata = {}
@@ -151,22 +194,19 @@ def run(args) -> int:
     if photos:
         capture, surface, mesh, info, coverage = _ingest_photos(args, capture_dir)
     else:
-        _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig "
-                                  "(they apply to photo captures)")
-        with bar(None, "read capture (images)", args.quiet) as b:
-            capture, surface, mesh, metadata = load_texel_capture(capture_dir, progress=b)
+        capture, surface, mesh, metadata = _read_texel(args, capture_dir)
         info = metadata["surface"]
     times["read_s"] = time.perf_counter() - t0
     out = ensure_out(args.out)
 
     t0 = time.perf_counter()
-    with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
-        fitted = relight.fit(capture, surface, progress=b, **kwargs)
+    fitted, parts = _fit_in_parts(args, capture, surface, out, kwargs, devices)
     times["fit_s"] = time.perf_counter() - t0
     sss = None
     if args.subsurface != "off":
         t0 = time.perf_counter()
-        fitted, sss = _fit_subsurface(args, capture, surface, fitted, metadata)
+        fitted, sss = _fit_subsurface(args, capture, surface, fitted, metadata,
+                                      {"block": args.block, "devices": devices})
         times["subsurface_s"] = time.perf_counter() - t0
     maps = fitted.maps(surface)
 
@@ -202,7 +242,10 @@ def run(args) -> int:
         _write_coverage(out, surface, coverage)
     times["write_s"] = time.perf_counter() - t0
 
+    # The report reads the fit on the host: NumPy leaves, so its per-texel tests compile nothing.
+    fitted = jax.tree_util.tree_map(np.asarray, fitted)
     report = _report(fitted, surface, Path(args.capture), times)
+    report["parts"] = parts
     if sss is not None:
         report["subsurface"] = _subsurface_report(fitted, surface, Path(args.capture), sss,
                                                   times["subsurface_s"])
@@ -213,7 +256,9 @@ def run(args) -> int:
     write_settings(out, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
                    fit_options=kwargs, mesh=info, samples=surface.num_samples,
                    input="photos" if photos else "texel", subsurface=sss,
-                   mitsuba_scene=None if scene is None else str(scene))
+                   mitsuba_scene=None if scene is None else str(scene),
+                   block=args.block, devices=parts["devices"], parts=str(out / PARTS),
+                   streamed=not isinstance(capture, stage.Capture))
     if not args.quiet:
         tail = ""
         if sss is not None:
@@ -221,9 +266,65 @@ def run(args) -> int:
             med = ss["mfp_median_mm"]
             tail = (f"; subsurface ({args.subsurface}) on {ss['subsurface_samples']} texels" +
                     ("" if med is None else ", median mfp " + "/".join(f"{x:.3g}" for x in med) + " mm (R/G/B)"))
+        resumed = f"; {parts['resumed_blocks']} of {parts['blocks']} blocks resumed" * bool(parts["resumed_blocks"])
         print(f"wrote {out}/ (texture set, scene.xml, report.md); {report['samples']} texels, "
-              f"{100 * report['failed_fraction']:.1f}% flagged{tail}")
+              f"{100 * report['failed_fraction']:.1f}% flagged{tail}{resumed}")
     return 0
+
+
+def _read_texel(args, capture_dir: Path):
+    """A texel-space capture folder or store: opened lazily (``open_texel_capture``: the mask is read
+    to find the seen texels, the radiance block by block later), or, with --subsurface, loaded whole."""
+    _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig "
+                              "(they apply to photo captures)")
+    if args.subsurface != "off":
+        # fit_subsurface couples texels through the diffusion operator: it takes the capture whole.
+        with bar(None, "read capture (images)", args.quiet) as b:
+            return load_texel_capture(capture_dir, progress=b)
+    with bar(None, "read mask", args.quiet) as b:
+        return open_texel_capture(capture_dir, progress=b)
+
+
+def _clear_parts(folder: Path) -> None:
+    """Delete an earlier run's result set at ``folder`` (only what fit_parts writes there; CLIError if
+    it holds anything else, so a user's folder is never removed)."""
+    if not folder.exists():
+        return
+    from ..fitting._parts import MANIFEST
+
+    own = folder.is_dir() and all(p.is_file() and (p.name == MANIFEST or p.name.startswith(("part_", ".")))
+                                  for p in folder.iterdir())
+    if not own:
+        raise CLIError(f"{folder}: exists and is not a fit's parts folder; refusing to delete it (move it away)")
+    shutil.rmtree(folder)
+
+
+def _fit_in_parts(args, capture, surface, out: Path, kwargs: dict, devices):
+    """``relight.fitting.fit_parts`` into ``out/.parts`` (cleared first unless --resume), then
+    ``merge_parts``: the Fit (that of one ``relight.fit`` call with these settings, bit for bit) and the
+    report's ``parts`` entry (blocks, how many fitted now, how many resumed)."""
+    import jax
+
+    from ..fitting import PartsFingerprintError, fit_parts, merge_parts
+
+    folder = out / PARTS
+    if not args.resume:
+        _clear_parts(folder)
+    fitted_blocks = []
+    with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
+        try:
+            fit_parts(capture, surface, folder, block=args.block, process_index=0, process_count=1,
+                      on_block=lambda s, e, _: fitted_blocks.append((s, e)), progress=b, devices=devices,
+                      **kwargs)
+        except PartsFingerprintError as err:
+            raise CLIError(f"--resume: {folder} holds the parts of another fit (the capture, the surface or a "
+                           f"setting such as --model, --method, --normals, --block or --devices changed): rerun "
+                           f"without --resume to fit afresh ({err})") from None
+    fitted = merge_parts(folder, surface)
+    n_blocks = -(-surface.num_samples // args.block)
+    ndev = len(jax.local_devices()) if devices is None else int(devices)
+    return fitted, {"folder": PARTS, "block": int(args.block), "blocks": n_blocks, "devices": ndev,
+                    "fitted_blocks": len(fitted_blocks), "resumed_blocks": n_blocks - len(fitted_blocks)}
 
 
 def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
@@ -317,10 +418,11 @@ def _subsurface_md(ss: dict) -> list[str]:
     return lines
 
 
-def _fit_subsurface(args, capture, surface, fitted, metadata: dict):
+def _fit_subsurface(args, capture, surface, fitted, metadata: dict, stream: dict | None = None):
     """``relight.fit_subsurface`` with ``--subsurface``'s mode (``per=``; the
     region mode, fit_subsurface's default, passes none), ``--regions`` and eta
-    (``--eta``, else the capture's metadata.subsurface.eta, else 1.4). Returns
+    (``--eta``, else the capture's metadata.subsurface.eta, else 1.4); ``stream``
+    (--block / --devices) goes to the BRDF refits of ``--passes`` > 1. Returns
     (the new Fit, the settings dict recorded in maps.json and the report)."""
     import relight
 
@@ -338,7 +440,7 @@ def _fit_subsurface(args, capture, surface, fitted, metadata: dict):
         kw["regions"] = regions
     with bar(None, "fit subsurface", args.quiet) as b:
         if args.passes > 1:
-            fo = fit_kwargs(relight.fit, args.method)
+            fo = {**fit_kwargs(relight.fit, args.method), **(stream or {})}
             rest = {k: v for k, v in kw.items() if k != "per"}
             g = relight.fit_with_subsurface(capture, surface, model=args.model or "ggx", normals=args.normals,
                                             per=args.subsurface, passes=args.passes, first=fitted,
@@ -409,6 +511,8 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
     from ..io import diligent_capture, lambert_normals, read_diligent, write_png
 
     _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
+    if args.resume:
+        raise CLIError(f"--resume: {folder} is a DiLiGenT folder, fitted in one go (no parts)")
     at_least("--subsample", args.subsample, 1)
     times = {}
     t0 = time.perf_counter()

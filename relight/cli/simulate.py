@@ -8,13 +8,35 @@ Lambert term by subsurface scattering: Jensen et al. 2001's eq. 5 through
 ``skin_bssrdf.DiffusionOperator`` (``stage.Subsurface``) with Christensen &
 Burley 2015's profile, albedo = the demo's rho_d (the total diffuse
 reflectance, unchanged) and the diffuse mean free path of a measured preset
-or of an EXR map (mm)."""
+or of an EXR map (mm).
+
+``--out NAME.zarr`` (the rule ``relight convert`` uses: a name ending in
+``.zarr`` is a capture store, any other a capture folder) streams the capture
+into a Zarr v3 capture store (``relight.io.CaptureStoreWriter``) instead of
+holding it: the texel grid is cut into blocks of ``--block`` texels, and per
+block only its seen texels get light visibility (``stage.light_visibility``),
+``stage.simulate_chunks`` and sensor noise, each chunk written as it comes, so
+peak memory is set by the block, not by the texel count. The store holds the
+full texel grid [V, L, H*W, C] (unseen and off-chart texels 0 and invalid), as
+the folder form and ``relight convert`` of it do, so both read the same.
+``truth/``, the preview and settings.json go inside the store folder, which is
+built under a temporary name and renamed into place whole.
+
+Sensor noise (``--noise``) is seeded per observation: the key of (view v,
+light l, texel t) is fold_in(fold_in(fold_in(PRNGKey(seed), v), l), t), so a
+capture's noise does not depend on the block or chunk sizes, nor on the form it
+is written in."""
 
 from __future__ import annotations
 
+import math
+import os
+import secrets
+import shutil
 import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,7 +46,18 @@ import skin_bssrdf
 import stage
 
 from ..image._preview import dilate, sample_texture, texture_view
-from ..io import read_exr, spec_mesh, texel_surface, write_capture, write_exr, write_maps, write_photo_capture
+from ..io import (
+    CaptureStoreWriter,
+    default_chunks,
+    is_capture_store,
+    read_exr,
+    spec_mesh,
+    texel_surface,
+    write_capture,
+    write_exr,
+    write_maps,
+    write_photo_capture,
+)
 from ..materials._maps import GGX, SUBSURFACE, material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
@@ -80,8 +113,27 @@ def add_parser(sub) -> None:
     p.add_argument("--eta", type=float, default=None,
                    help="relative index of refraction of the subsurface Fresnel transmittances (default: the "
                         "preset's, 1.4 for a map)")
-    add_out(p, "capture folder to write")
+    p.add_argument("--block", type=int, default=None, metavar="N",
+                   help=f"texels of the grid per block when --out ends in {STORE_SUFFIX} (the capture is "
+                        f"streamed into a capture store block by block; default {DEFAULT_BLOCK}; rounded down to a "
+                        "multiple of the store's sample chunk). Peak memory grows with it, not with --resolution")
+    add_out(p, f"capture folder to write, or a capture store if the name ends in {STORE_SUFFIX}")
     finish_parser(p, run)
+
+
+# --out NAME.zarr: a capture store (relight convert's rule).
+STORE_SUFFIX = ".zarr"
+# Texels of the grid per block of the store form: one store chunk's width, so a
+# block writes whole chunks. Its working set (the block's visibility [n, L] bools,
+# the shading temporaries of a 16-light chunk, the scattered chunk) stayed under
+# ~60 MiB at 346 lights; blocks of 65536 texels cost ~60 MiB more at the same
+# speed (docs/figures/pipeline_memory.md).
+DEFAULT_BLOCK = 1 << 14
+# Lights per simulate_chunks chunk in the store form: two store chunks' worth
+# (relight.io's LIGHT_CHUNK = 8), so every write completes its store chunks.
+_STORE_LIGHT_CHUNK = 16
+# Lights per chunk when the capture is in memory (the folder form), stage.simulate's default.
+_FOLDER_LIGHT_CHUNK = 64
 
 
 # The mean free path floor of a subsurface texel's zero channels: MaterialMaps.profile's, so that the
@@ -175,6 +227,140 @@ def _noise(spec: str, read_noise: float):
     return stage.Sensor(exposure=exposure, read_noise=read_noise, shot_noise=True)
 
 
+@eqx.filter_jit
+def _sense_chunk(sensor: stage.Sensor, key, view, light0, texels, radiance, mask):
+    """``stage.Sensor.expose`` on one chunk (radiance [Lc, Pc, C], mask [Lc, Pc]),
+    each observation seeded by its own key fold_in(fold_in(fold_in(key, view),
+    light), texel) (light = light0 + row, texel = ``texels`` [Pc], its index on
+    the texel grid), so the noise of an observation is the same whatever chunk
+    it is drawn in. Returns (radiance in capture units [Lc, Pc, C], mask without
+    the saturated observations)."""
+    kv = jax.random.fold_in(key, view)
+    lights = jnp.asarray(light0, jnp.int32) + jnp.arange(radiance.shape[0], dtype=jnp.int32)
+
+    def one(light, texel, rad):
+        return sensor.expose(jax.random.fold_in(jax.random.fold_in(kv, light), texel), rad)
+
+    dn, sat = jax.vmap(lambda lt, r: jax.vmap(lambda t, x: one(lt, t, x))(texels, r))(lights, radiance)
+    return sensor.to_radiance(dn).astype(radiance.dtype), mask & ~sat
+
+
+def sense_chunk(sensor: stage.Sensor | None, seed: int, view: int, light0: int, texels, radiance, mask):
+    """Sensor noise of one chunk of a texel capture, reproducible per
+    observation (see ``_sense_chunk``): NumPy (radiance [Lc, Pc, C] float32 >= 0,
+    mask [Lc, Pc] bool). ``sensor`` None: the chunk as it is (clipped at 0)."""
+    if sensor is not None:
+        radiance, mask = _sense_chunk(sensor, jax.random.PRNGKey(seed), jnp.asarray(view, jnp.int32),
+                                      jnp.asarray(light0, jnp.int32), jnp.asarray(texels, jnp.int32),
+                                      jnp.asarray(radiance, jnp.float32), jnp.asarray(mask, bool))
+    return np.maximum(np.asarray(radiance, np.float32), 0.0), np.asarray(mask, bool)
+
+
+def _peak_rss_mib() -> float | None:
+    """The process's peak resident set so far (MiB; Linux ru_maxrss is KiB), None where unknown."""
+    try:
+        import resource
+
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    except (ImportError, OSError):  # pragma: no cover - not on Linux / macOS
+        return None
+
+
+def _check_form(args, out: Path) -> bool:
+    """True for the store form (``--out`` ending in .zarr); CLIError naming the
+    flag for a combination that contradicts the form."""
+    store = out.suffix == STORE_SUFFIX
+    if store and args.space == "image":
+        raise CLIError(f"--out {out}: a capture store ({STORE_SUFFIX}) holds texel-space captures; --space image "
+                       f"writes a photo capture folder (give a name not ending in {STORE_SUFFIX})")
+    if args.block is not None and not store:
+        raise CLIError(f"--block {args.block}: applies to a capture store only (--out ending in {STORE_SUFFIX}); "
+                       "a capture folder is simulated in memory")
+    if args.block is not None and args.subsurface is not None:
+        raise CLIError(f"--block {args.block}: --subsurface couples every texel through the diffusion operator, "
+                       "so the store is written one light chunk of the whole surface at a time, not in blocks")
+    if args.block is not None:
+        at_least("--block", args.block, 64)
+    if store:
+        if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or is_capture_store(out))):
+            raise CLIError(f"--out {out}: exists and is not a capture store (or an empty folder); refusing to "
+                           "replace it")
+    elif out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):
+        raise CLIError(f"--out {out}: exists and is not a capture folder (or an empty folder); refusing to replace it")
+    return store
+
+
+def _truth(args, sss_source, full, surface, quiet, times):
+    """The demo material on the seen samples: (rho, f0, alpha, truth brdf,
+    Subsurface or None, mfp or None, model or None, the subsurface report or None)."""
+    rho, f0, alpha = demo_material(surface)
+    truth = brdf.lambert_ggx(rho, f0, alpha)
+    if sss_source is None:
+        return rho, f0, alpha, truth, None, None, None, None
+    t0 = time.perf_counter()
+    kind, source, eta = sss_source
+    with bar(None, "subsurface (diffusion operator)", quiet) as b:
+        b("neighbours", 0, None)
+        mfp = _mfp_at(kind, source, full, surface, args.subsurface)
+        sss, local, model, radius = _subsurface(surface, rho, mfp, eta)
+    _, specular = stage.split_material(truth)
+    truth = brdf.Sum(brdf.Lambert(local), specular)
+    on = model == SUBSURFACE
+    sss_info = {"source": f"preset {args.subsurface}" if kind == "preset" else str(Path(args.subsurface)),
+                "mfp_scale": args.mfp_scale, "eta": eta,
+                "mfp_mm": (source.tolist() if kind == "preset"
+                           else np.median(mfp[on], axis=0).tolist()),  # a map: the median over subsurface texels
+                "subsurface_samples": int(on.sum()),
+                "profile": "Burley dmfp (Christensen & Burley 2015), albedo = the diffuse albedo rho_d",
+                "operator": {"radius_mm": round(radius, 4), "energy_fraction": SUBSURFACE_ENERGY,
+                             "max_neighbours": int(sss.operator.index.shape[1])}}
+    times["subsurface_operator_s"] = time.perf_counter() - t0
+    return rho, f0, alpha, truth, sss, mfp, model, sss_info
+
+
+def _metadata(args, spec, resolution, rig_desc, sensor, sss_info) -> dict:
+    """capture.json's (or the store manifest's) metadata: what load_texel_capture needs to rebuild the surface."""
+    H, W = resolution
+    noise = None if sensor is None else {"model": "poisson-gaussian", "exposure": float(args.noise),
+                                         "read_noise": args.read_noise, "seed": args.seed,
+                                         "keys": "fold_in(fold_in(fold_in(PRNGKey(seed), view), light), texel)"}
+    material = ("relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5), ground truth in truth/"
+                if sss_info is None else
+                "relight demo skin (GGX, F0 0.028, alpha 0.2-0.5, + subsurface scattering: Burley profile of albedo "
+                "rho_d and the mean free path of metadata.subsurface), ground truth in truth/")
+    return {"space": "texel", "surface": {**spec, "resolution": [H, W]}, "rig": rig_desc, "material": material,
+            "subsurface": sss_info, "noise": noise,
+            "units": {"lengths": "mm", "radiance": "relative to the rig's irradiance"},
+            "writer": "relight simulate"}
+
+
+def _write_extras(out: Path, mesh, cams, surface, resolution, all_on, truth_maps, spec, sss_info) -> None:
+    """truth/ (the ground-truth map set) and the preview (view 0, every light on:
+    ``all_on`` [H*W, C] on the texel grid) into ``out``."""
+    H, W = resolution
+    truth_meta = {"source": "relight simulate ground truth"}
+    if sss_info is not None:
+        truth_meta["subsurface"] = {"eta": sss_info["eta"], "source": sss_info["source"]}
+    write_maps(out / "truth", truth_maps, surface, surface_info=spec, metadata=truth_meta)
+    covered = np.zeros((H, W), bool)
+    covered.reshape(-1)[np.asarray(surface.texel_index)] = True
+    view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on.reshape(H, W, -1), covered)})["all_lights"]
+    write_exr(out / "preview_all_lights.exr", view)
+    write_preview(out / "preview_all_lights.png", view)
+
+
+def _geometry(args, times):
+    """(mesh spec, mesh, full texel surface, rig, rig description, cameras) of the flags."""
+    t0 = time.perf_counter()
+    spec = mesh_from_args(args)
+    mesh, full = texel_surface(spec, args.resolution, where=str(spec["path"]))
+    rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
+    warn_mesh_size("simulate", mesh, rig)
+    cams = parse_cameras(args.camera, mesh, args.image_size)
+    times["geometry_s"] = time.perf_counter() - t0
+    return spec, mesh, full, rig, rig_desc, cams
+
+
 def run(args) -> int:
     at_least("--resolution", args.resolution, 2)
     at_least("--image-size", args.image_size, MIN_IMAGE_SIZE)
@@ -184,19 +370,13 @@ def run(args) -> int:
     if sss_source is not None and args.space == "image":
         raise CLIError(f"--subsurface {args.subsurface}: texel space only (--space texel): the diffusion operator "
                        "couples texels over the whole surface, which a camera-space capture does not sample")
-    if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):
-        raise CLIError(f"--out {out}: exists and is not a capture folder (or an empty folder); refusing to replace it")
+    store = _check_form(args, out)
     if args.space == "image":
         return _run_image(args, out, sensor)
+    if store:
+        return _run_store(args, out, sensor, sss_source)
     times = {}
-    t0 = time.perf_counter()
-    spec = mesh_from_args(args)
-    mesh, full = texel_surface(spec, args.resolution, where=str(spec["path"]))
-    rig, rig_desc = parse_rig(args.rig, args.rig_units, args.rig_up)
-    warn_mesh_size("simulate", mesh, rig)
-    cams = parse_cameras(args.camera, mesh, args.image_size)
-    times["geometry_s"] = time.perf_counter() - t0
-
+    spec, mesh, full, rig, rig_desc, cams = _geometry(args, times)
     t0 = time.perf_counter()
     with bar(full.num_samples * rig.num_lights, "visibility (rays)", args.quiet) as b:
         light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=b)
@@ -208,35 +388,11 @@ def run(args) -> int:
     light_vis, cam_vis = light_vis[seen], cam_vis[:, seen]
     times["visibility_s"] = time.perf_counter() - t0
 
-    rho, f0, alpha = demo_material(surface)
-    truth = brdf.lambert_ggx(rho, f0, alpha)
-    sss, mfp, model, sss_info = None, None, None, None
-    if sss_source is not None:
-        t0 = time.perf_counter()
-        kind, source, eta = sss_source
-        with bar(None, "subsurface (diffusion operator)", args.quiet) as b:
-            b("neighbours", 0, None)
-            mfp = _mfp_at(kind, source, full, surface, args.subsurface)
-            sss, local, model, radius = _subsurface(surface, rho, mfp, eta)
-        _, specular = stage.split_material(truth)
-        truth = brdf.Sum(brdf.Lambert(local), specular)
-        on = model == SUBSURFACE
-        sss_info = {"source": f"preset {args.subsurface}" if kind == "preset" else str(Path(args.subsurface)),
-                    "mfp_scale": args.mfp_scale, "eta": eta,
-                    "mfp_mm": (source.tolist() if kind == "preset"
-                               else np.median(mfp[on], axis=0).tolist()),  # a map: the median over subsurface texels
-                    "subsurface_samples": int(on.sum()),
-                    "profile": "Burley dmfp (Christensen & Burley 2015), albedo = the diffuse albedo rho_d",
-                    "operator": {"radius_mm": round(radius, 4), "energy_fraction": SUBSURFACE_ENERGY,
-                                 "max_neighbours": int(sss.operator.index.shape[1])}}
-        times["subsurface_operator_s"] = time.perf_counter() - t0
+    rho, f0, alpha, truth, sss, mfp, model, sss_info = _truth(args, sss_source, full, surface, args.quiet, times)
     t0 = time.perf_counter()
     with bar(rig.num_lights * len(cams), "simulate (lights)", args.quiet) as b:
-        capture = stage.simulate(surface, rig, cams, truth, light_vis, cam_vis, subsurface=sss, progress=b)
-    if sensor is not None:
-        capture = stage.sense(capture, sensor, jax.random.PRNGKey(args.seed))
-    times["simulate_s"] = time.perf_counter() - t0
-
+        capture = stage.simulate(surface, rig, cams, truth, light_vis, cam_vis, subsurface=sss, progress=b,
+                                 light_chunk=_FOLDER_LIGHT_CHUNK)
     # Store on the full texel grid: every light image is a texture (viewable in
     # any EXR viewer); texels without a seen sample are 0 and marked invalid.
     H, W = full.resolution
@@ -244,45 +400,220 @@ def run(args) -> int:
     idx = np.asarray(surface.texel_index)
     radiance = np.zeros((V, L, H * W, C), np.float32)
     valid = np.zeros((V, L, H * W), bool)
-    radiance[:, :, idx] = np.maximum(np.asarray(capture.radiance, np.float32), 0.0)
-    valid[:, :, idx] = np.asarray(capture.mask)
-    surf_info = {**spec, "resolution": [H, W]}
-    noise = None if sensor is None else {"model": "poisson-gaussian", "exposure": float(args.noise),
-                                         "read_noise": args.read_noise, "seed": args.seed}
-    material = ("relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5), ground truth in truth/"
-                if sss is None else
-                "relight demo skin (GGX, F0 0.028, alpha 0.2-0.5, + subsurface scattering: Burley profile of albedo "
-                "rho_d and the mean free path of metadata.subsurface), ground truth in truth/")
-    metadata = {"space": "texel", "surface": surf_info, "rig": rig_desc, "material": material,
-                "subsurface": sss_info, "noise": noise,
-                "units": {"lengths": "mm", "radiance": "relative to the rig's irradiance"},
-                "writer": "relight simulate"}
+    for v in range(V):
+        for l0 in range(0, L, _FOLDER_LIGHT_CHUNK):
+            ls = slice(l0, min(l0 + _FOLDER_LIGHT_CHUNK, L))
+            r, m = sense_chunk(sensor, args.seed, v, l0, idx, capture.radiance[v, ls], capture.mask[v, ls])
+            radiance[v, ls][:, idx] = r  # (radiance[v, ls, idx] would put the texel axis first)
+            valid[v, ls][:, idx] = m
+    del capture
+    times["simulate_s"] = time.perf_counter() - t0
+    metadata = _metadata(args, spec, full.resolution, rig_desc, sensor, sss_info)
     if out.is_dir() and not any(out.iterdir()):
         out.rmdir()  # an empty folder may be replaced by the capture
     out.parent.mkdir(parents=True, exist_ok=True)  # --out is created, as in every command
     t0 = time.perf_counter()
     write_capture(out, radiance, rig, cams, valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
-    truth_meta = {"source": "relight simulate ground truth"}
-    if sss_info is not None:
-        truth_meta["subsurface"] = {"eta": sss_info["eta"], "source": sss_info["source"]}
-    write_maps(out / "truth", material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), surface,
-               surface_info=spec, metadata=truth_meta)
-    # Preview: view 0 with every light on at once.
-    all_on = radiance[0].sum(axis=0).reshape(H, W, C)
-    covered = np.zeros((H, W), bool)
-    covered.reshape(-1)[idx] = True
-    view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on, covered)})["all_lights"]
-    write_exr(out / "preview_all_lights.exr", view)
-    write_preview(out / "preview_all_lights.png", view)
+    _write_extras(out, mesh, cams, surface, full.resolution, radiance[0].sum(axis=0),
+                  material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), spec, sss_info)
     times["write_s"] = time.perf_counter() - t0
-    write_settings(out, "simulate", args, mesh=surf_info, rig=rig_desc, lights=rig.num_lights, views=len(cams),
-                   samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info,
+    write_settings(out, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=rig.num_lights,
+                   views=len(cams), samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info,
                    timings_s={k: round(v, 3) for k, v in times.items()})
     if not args.quiet:
         tail = "" if sss_info is None else (f", subsurface {sss_info['source']}: mfp "
                                             + "/".join(f"{x:.3g}" for x in sss_info["mfp_mm"]) + " mm (R/G/B)")
         print(f"wrote {out}/ ({V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen{tail})")
     return 0
+
+
+def store_blocks(n_texels: int, block: int, channels: int, dtype) -> tuple[int, int]:
+    """(texels per block, store sample chunk) of the store form for a grid of
+    ``n_texels`` and ``--block``: the chunk is relight.io's default (about 2 MiB
+    of 8 lights) or the largest power of two <= block if smaller, and the block
+    is rounded down to a multiple of it, so every block writes whole chunks."""
+    pc = default_chunks((1, 8, n_texels, channels), dtype)[2]
+    pc = max(1, min(pc, 1 << int(math.floor(math.log2(max(1, block))))))
+    return max(pc, (block // pc) * pc), pc
+
+
+def _run_store(args, out: Path, sensor, sss_source) -> int:
+    """The store form: stream the capture into a capture store block by block
+    (module docstring). With --subsurface the operator couples every seen texel,
+    so there is one block (the whole grid) and the light chunk is a store chunk's 8."""
+    times, memory = {}, {}
+    spec, mesh, full, rig, rig_desc, cams = _geometry(args, times)
+    memory["geometry"] = _peak_rss_mib()
+    _return_freed_memory()
+    t0 = time.perf_counter()
+    cam_vis = _camera_visibility(mesh, full, cams)
+    seen = np.nonzero(np.any(cam_vis, axis=0))[0]
+    if len(seen) == 0:
+        raise CLIError(f"--camera {args.camera}: no texel of the mesh is seen by any camera")
+    surface = full.subset(seen)
+    cam_vis = cam_vis[:, seen]
+    times["camera_visibility_s"] = time.perf_counter() - t0
+    rho, f0, alpha, truth, sss, mfp, model, sss_info = _truth(args, sss_source, full, surface, args.quiet, times)
+    memory["camera_visibility"] = _peak_rss_mib()
+    H, W = full.resolution
+    del full  # only the seen texels from here (the grid's surface is ~70 B a texel)
+    _return_freed_memory()
+
+    V, L, C = len(cams), rig.num_lights, 3
+    dtype = np.float16 if args.half else np.float32
+    block, pc = store_blocks(H * W, DEFAULT_BLOCK if args.block is None else args.block, C, dtype)
+    if sss is not None:
+        block = H * W
+    metadata = _metadata(args, spec, (H, W), rig_desc, sensor, sss_info)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.{secrets.token_hex(6)}.building"
+    t0 = time.perf_counter()
+    try:
+        with CaptureStoreWriter(tmp, (V, L, H * W, C), dtype, rig, cams, metadata, (1, 8, pc, C),
+                                sample_shape=(H, W)) as writer:
+            all_on, n_blocks, t_vis = _stream(writer, args, mesh, rig, cams, surface, cam_vis, (rho, f0, alpha),
+                                              truth, sss, sensor, block)
+        times["visibility_s"] = t_vis
+        times["simulate_s"] = time.perf_counter() - t0 - t_vis
+        memory["simulate"] = _peak_rss_mib()
+        _return_freed_memory()
+        t0 = time.perf_counter()
+        _write_extras(tmp, mesh, cams, surface, (H, W), all_on,
+                      material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), spec, sss_info)
+        times["write_s"] = time.perf_counter() - t0
+        memory["write"] = _peak_rss_mib()
+        write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=L, views=V,
+                       samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
+                       block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
+                       timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
+        _replace(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if not args.quiet:
+        print(f"wrote {out} (capture store: {V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen, "
+              f"{n_blocks} blocks of {block} texels)")
+    return 0
+
+
+def _stream(writer, args, mesh, rig, cams, surface, cam_vis, params, truth, sss, sensor, block: int):
+    """Simulate block by block into ``writer``: per block of ``block`` grid
+    texels, the light visibility of its seen texels, ``stage.simulate_chunks``,
+    sensor noise, each chunk scattered onto the block's texels and written.
+    Returns (view 0 with every light on [H*W, C], blocks, seconds of visibility)."""
+    H, W = surface.resolution
+    V, L, C = len(cams), rig.num_lights, 3
+    lc = _STORE_LIGHT_CHUNK if sss is None else 8
+    # Blocks are cut on the host (_host_subset): an eager JAX op compiles once per shape, and every
+    # block has its own seen count, so each block would add ~15 MiB of executables that are never freed.
+    host = _host_fields(surface)
+    params = [np.asarray(x) for x in params]
+    tex = host["texel_index"]
+    edges = np.unique(np.arange(0, H * W + block, block).clip(max=H * W))
+    starts = np.searchsorted(tex, edges)  # the seen samples of block k: starts[k]:starts[k + 1]
+    counts = np.diff(starts)
+    # Every block's seen samples padded to one length (repeating its last): the kernels compile once.
+    pad_to = surface.num_samples if sss is not None else int(-(-int(counts.max()) // 128) * 128)
+    all_on = np.zeros((H * W, C), np.float32)
+    t_vis = 0.0
+    with bar(V * L * len(counts), f"simulate into store ({len(counts)} blocks of {block} texels)", args.quiet) as b:
+        for k, n in enumerate(counts):
+            g0, g1 = int(edges[k]), int(edges[k + 1])
+            if n == 0:  # nothing seen here: zeros, invalid
+                for v in range(V):
+                    for l0 in range(0, L, lc):
+                        nl = min(lc, L - l0)
+                        writer.write(v, slice(l0, l0 + nl), slice(g0, g1), np.zeros((nl, g1 - g0, C), np.float32),
+                                     np.zeros((nl, g1 - g0), bool))
+                        b.update(nl)
+                continue
+            rows = np.arange(starts[k], starts[k + 1])
+            pad = np.minimum(np.arange(starts[k], starts[k] + pad_to), starts[k + 1] - 1)
+            t1 = time.perf_counter()
+            b(f"block {k + 1}/{len(counts)}: light visibility", 0, None)
+            lv = stage.light_visibility(mesh, _host_subset(host, (H, W), rows), rig, chunk=1 << 18)
+            t_vis += time.perf_counter() - t1
+            lv = lv[np.minimum(np.arange(pad_to), n - 1)]
+            if sss is not None:
+                sub, material = surface, truth
+            else:
+                sub = _host_subset(host, (H, W), pad)
+                material = brdf.lambert_ggx(*(jax.device_put(x[pad]) for x in params))
+            local = tex[rows] - g0
+            b(f"block {k + 1}/{len(counts)}: simulate", 0, None)
+            for v, ls, _, rad, msk in stage.simulate_chunks(sub, rig, cams, material, lv, cam_vis[:, pad],
+                                                            light_chunk=lc, sample_chunk=pad_to, subsurface=sss):
+                r, m = sense_chunk(sensor, args.seed, v, ls.start, tex[pad], rad, msk)
+                nl = ls.stop - ls.start
+                dense, dmask = np.zeros((nl, g1 - g0, C), np.float32), np.zeros((nl, g1 - g0), bool)
+                dense[:, local], dmask[:, local] = r[:, :n], m[:, :n]
+                writer.write(v, ls, slice(g0, g1), dense, dmask)
+                if v == 0:
+                    all_on[g0:g1] += dense.sum(axis=0)
+                b.update(nl)
+    return all_on, int(len(counts)), t_vis
+
+
+# Texels per call of the store form's camera visibility pass.
+_CAMERA_CHUNK = 1 << 16
+
+
+def _camera_visibility(mesh, full: stage.Surface, cams) -> np.ndarray:
+    """``stage.camera_visibility`` of the whole grid (bool [V, P]), ``_CAMERA_CHUNK``
+    texels at a time: each texel's answer is its own ray, so the result is the
+    same, while the pass's temporaries (the occluder's float64 copies, the
+    projections and rays: ~270 B a texel, 260 MiB at 1024^2) stay one chunk's."""
+    host = _host_fields(full)
+    out = np.zeros((len(cams), full.num_samples), bool)
+    for s in range(0, full.num_samples, _CAMERA_CHUNK):
+        part = slice(s, min(s + _CAMERA_CHUNK, full.num_samples))
+        out[:, part] = stage.camera_visibility(mesh, _host_subset(host, full.resolution, part), cams)
+    return out
+
+
+def _host_fields(surface: stage.Surface) -> dict:
+    """The surface's fields as NumPy arrays (views of the JAX buffers on CPU: no copy)."""
+    return {k: None if getattr(surface, k) is None else np.asarray(getattr(surface, k)) for k in _SURFACE_FIELDS}
+
+
+def _return_freed_memory() -> None:
+    """Hand freed heap back to the system (glibc's ``malloc_trim``; a no-op
+    elsewhere): stage.texel_samples and the camera visibility of the whole grid
+    free hundreds of bytes a texel of temporaries that glibc keeps (~250 MiB at
+    1024^2), which would otherwise stay resident under the streaming and the
+    writing that follow."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        pass
+
+
+_SURFACE_FIELDS = ("position", "normal", "tangent", "bitangent", "uv", "area", "texel_index", "face", "barycentric")
+
+
+def _host_subset(host: dict, resolution, index) -> stage.Surface:
+    """``Surface.subset`` of a surface held as NumPy fields (``host``), with no JAX computation: jnp
+    indexing and even ``jnp.asarray`` compile a program per new shape, ``jax.device_put`` does not."""
+    return stage.Surface(**{k: None if v is None else jax.device_put(v[index]) for k, v in host.items()},
+                         resolution=resolution)
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Move the finished store ``tmp`` to ``out``: an old store (or empty folder)
+    there is moved aside first and deleted after, so ``out`` holds the old store,
+    then nothing for a moment, then the new one (as relight.io's store writer does)."""
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    old = out.with_name(f".{out.name}.{secrets.token_hex(6)}.old")
+    os.replace(out, old)
+    try:
+        os.replace(tmp, out)
+    except BaseException:
+        os.replace(old, out)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def _run_image(args, out: Path, sensor) -> int:

@@ -349,10 +349,18 @@ def _fit_rung(data, w, h, index, lay, u0, opts, bar):
     return dict(u=u, rms=rms, hmse=hmse, code=code, steps=steps, sigma=sigma)
 
 
-def _physical(u, lay):
-    """Unpack a rung's u [n, size] to numpy physical maps."""
-    p = jax.vmap(lambda v: _fit_model.unpack(v, lay))(jnp.asarray(u))
-    return {k: np.asarray(v) for k, v in p.items()}
+@jax.jit(static_argnames=("lay",))
+def _physical_chunk(u, lay):
+    p = jax.vmap(lambda v: _fit_model.unpack(v, lay))(u)
+    return p, jax.vmap(_fit_model.frame)(p["normal"], p["phi"])
+
+
+def _physical(u, lay, size):
+    """A rung's u [n, lay.size] unpacked to NumPy physical maps and the fitted frames R [n, 3, 3]
+    (surface-frame coordinates), ``size`` samples per call (padded: one program per rung)."""
+    parts = [_physical_chunk(jnp.asarray(u[idx]), lay) for idx, _ in _chunks_of(np.arange(len(u)), size)]
+    p, R = jax.tree_util.tree_map(lambda *x: np.concatenate([np.asarray(a) for a in x])[:len(u)], *parts)
+    return p, R
 
 
 def _rungs(model) -> tuple[int, ...]:
@@ -600,14 +608,29 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
 
 def _solve_plan(P, n_valid, chunk, devs, rounds, steps_per_round, solver, loss, cauchy):
     """(n_keep, opts): the packed observation count (the most any sample has,
-    rounded up to 32) and the solver options with one padded chunk shape for
+    rounded up to a bucket of :func:`_obs_bucket`) and the solver options with one padded chunk shape for
     the whole fit (P, not the block, sets it; a multiple of the devices), so
     every block and every process compiles the same programs."""
-    n_keep = int(-(-max(int(np.max(n_valid)), 1) // 32) * 32)
+    n_keep = _obs_bucket(int(np.max(n_valid)))
     size = -(-_chunk_size(P, chunk) // len(devs)) * len(devs)
     opts = dict(size=size, rounds=rounds, steps_per_round=steps_per_round, solver=solver, put=_placer(devs),
                 cauchy=float(cauchy) if loss == "cauchy" else None)
     return n_keep, opts
+
+
+def _obs_bucket(n: int) -> int:
+    """The padded observation count for a capture whose richest sample has ``n``: the smallest of 32,
+    64, 96, 128, 192, 256, 384, 512, 768, ... (multiples of 32 up to 128, then 1 or 1.5 times a power of
+    two) that holds it. Coarse buckets let captures of other sizes and coverage reuse the compiled
+    solver (each rung's program is specialised to this count); the padding (w = 0) costs at most a third
+    more work per step beyond 128 observations."""
+    n = max(int(n), 1)
+    if n <= 128:
+        return -(-n // 32) * 32
+    b = 128
+    while b < n:
+        b = b * 3 // 2 if (b & (b - 1)) == 0 else b * 4 // 3
+    return b
 
 
 def fit_from_arrays(out: dict, dt, floor: float, solver_name: str) -> Fit:
@@ -650,9 +673,14 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
     arrays [b1 - b0, ...] (``_FIELDS``). The block's observations live only in here."""
     n = b1 - b0
     rad, mask = _read_samples(capture, kind, b0, b1)
-    parts = [_observations_of(rad[:, :, s - b0:e - b0], mask[:, :, s - b0:e - b0], rig, cameras,
-                              surface.subset(np.arange(s, e)), n_keep, dt)
-             for s, e in ((s, min(s + chunk, b1)) for s in range(b0, b1, chunk))]
+    # Every chunk padded to ``chunk`` samples (repeating its last): the shading geometry's programs
+    # compile for one shape, whatever the block or capture size.
+    parts = []
+    for s in range(0, n, chunk):
+        idx, m = next(_chunks_of(np.arange(s, min(s + chunk, n)), chunk))
+        part = _observations_of(rad[:, :, idx], mask[:, :, idx], rig, cameras, _rows(surface, b0 + idx), n_keep,
+                                dt)
+        parts.append(tuple(x[:m] for x in part))
     del rad, mask
     obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts, strict=True))
     del parts
@@ -661,7 +689,7 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
     data = (obs, w, wi, wo, irr)
     every = np.arange(n)
     zero = np.zeros_like(w)
-    block_surface = surface.subset(np.arange(b0, b1))
+    block_surface = _rows(surface, np.arange(b0, b1))
 
     if len(rungs) == 1:
         k = rungs[0]
@@ -692,7 +720,7 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
                 bar = phases(f"fit {MODELS[k]}", chosen[k] if last else None)
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
                                           bar))
-    out = _assemble(fits, choice, n, normals, floor, dt, block_surface)
+    out = _assemble(fits, choice, n, normals, floor, dt, block_surface, opts["size"])
     nobs = n_valid.astype(np.float32)
     empty = nobs < _MIN_OBSERVATIONS
     # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
@@ -713,19 +741,26 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
     return {k: out[k] for k in _FIELDS}
 
 
-def _assemble(fits, choice, P, normals, floor, dt, surface):
+def _rows(surface: stage.Surface, index) -> stage.Surface:
+    """``surface.subset(index)`` taken on the host (NumPy rows, then device arrays): no gather program
+    compiled per index length."""
+    index = np.asarray(index)
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]), surface)
+
+
+def _assemble(fits, choice, P, normals, floor, dt, surface, size):
     out = dict(rho_d=np.zeros((P, 3), dt), rho_s=np.zeros((P, 1), dt), alpha=np.zeros((P, 2), dt),
                normal=np.zeros((P, 3), dt), tangent=np.zeros((P, 3), dt), residual=np.zeros(P, dt),
                result=np.zeros(P, np.int32), steps=np.zeros(P, np.int32), uncertainty=np.zeros((P, 9), dt))
     T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
     for k, (sel, r) in fits.items():
         lay = Layout(k, normals, floor)
-        p = _physical(r["u"], lay)
+        p, R = _physical(r["u"], lay, size)
         out["rho_d"][sel] = p["rho_d"]
         out["rho_s"][sel] = p["rho_s"]
         out["alpha"][sel] = p["alpha"]
         # Fitted frame (surface-frame coordinates) to world space.
-        R = np.asarray(jax.vmap(_fit_model.frame)(jnp.asarray(p["normal"]), jnp.asarray(p["phi"])), np.float64)
+        R = R.astype(np.float64)
         t_l, n_l = R[:, 0], R[:, 2]
         Ts, Bs, Ns = T[sel], B[sel], N[sel]
         to_world = lambda v, Ts=Ts, Bs=Bs, Ns=Ns: v[:, 0:1] * Ts + v[:, 1:2] * Bs + v[:, 2:3] * Ns  # noqa: E731

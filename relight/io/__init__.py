@@ -32,6 +32,7 @@ from ._hdr import write_hdr as write_hdr
 from ._json import jsonable as jsonable
 from ._json import read_json as read_json
 from ._json import write_json as write_json
+from ._mitsuba import mitsuba_envmap as mitsuba_envmap
 from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
@@ -49,17 +50,20 @@ from ._store import CaptureStoreError as CaptureStoreError
 from ._store import CaptureStoreWriter as CaptureStoreWriter
 from ._store import StoreChangedError as StoreChangedError
 from ._store import capture_folder_to_store as capture_folder_to_store
+from ._store import default_chunks as default_chunks
 from ._store import is_capture_store as is_capture_store
 from ._store import open_capture_store as open_capture_store
 from ._store import store_to_capture_folder as store_to_capture_folder
 from ._store import write_capture_store as write_capture_store
 from ._texel import MESH_UNITS as MESH_UNITS
+from ._texel import SampleSubset as SampleSubset
 from ._texel import TexelCapture as TexelCapture
 from ._texel import TexelMaps as TexelMaps
 from ._texel import load_texel_capture as load_texel_capture
 from ._texel import load_texel_maps as load_texel_maps
 from ._texel import mesh_size_warning as mesh_size_warning
 from ._texel import mesh_spec as mesh_spec
+from ._texel import open_texel_capture as open_texel_capture
 from ._texel import spec_mesh as spec_mesh
 from ._texel import texel_surface as texel_surface
 from ._texture_set import TextureSet as TextureSet
@@ -78,8 +82,10 @@ __all__ = [
     "CaptureStoreWriter",
     "StoreChangedError",
     "capture_folder_to_store",
+    "default_chunks",
     "is_capture_store",
     "open_capture_store",
+    "open_texel_capture",
     "store_to_capture_folder",
     "write_capture_store",
     "CaptureData",
@@ -91,6 +97,7 @@ __all__ = [
     "PhotoCapture",
     "PhotoTexelReport",
     "PhotoView",
+    "SampleSubset",
     "TexelCapture",
     "TexelMaps",
     "TextureSet",
@@ -133,6 +140,7 @@ __all__ = [
     "write_hdr",
     "write_json",
     "write_maps",
+    "mitsuba_envmap",
     "write_mitsuba_scene",
     "write_pfm",
     "write_photo_capture",

@@ -1,8 +1,8 @@
 """Export a fitted texture set as a Mitsuba 3 scene (XML, ``version="3.0.0"``).
 
 The scene folder is self-contained: ``scene.xml``, the mesh (``mesh.obj``,
-written here from a ``stage.Mesh`` in the stage's millimetre frame, or a copy
-of a given .obj/.ply), the textures Mitsuba reads (converted from the texture
+written here from a ``stage.Mesh`` in the stage's millimetre frame, a copy of
+a given .obj, or a given .ply converted to OBJ), the textures Mitsuba reads (converted from the texture
 set, below) and a copy of the environment map. Render it with
 ``mitsuba scene.xml`` or ``mi.render(mi.load_file("scene.xml"))``.
 
@@ -32,6 +32,17 @@ s = dP/du, matching the set's) only when it differs from the mesh normal,
 with Mitsuba's terminator shadowing off (``use_shadowing_function``, Mitsuba
 >= 3.7.1), since the fitted model has none.
 
+``fresnel="schlick"`` writes the fitted model's Schlick Fresnel exactly
+instead, for renders that must agree with ``relight.render`` to within Monte
+Carlo noise (approximation (1) above is worth ~2% of a skin pixel's radiance):
+``principled`` with metallic = 1 is GGX (separable Smith) with Schlick's
+Fresnel of F0 = base_color (Mitsuba 3's ``calc_schlick``; checked against
+``brdf`` to 1e-6), and it goes in a ``blendbsdf`` of weight w = 0.99 next to
+``diffuse`` of reflectance rho_d / (1 - w), with base_color = F0 / w: exact
+for the diffuse term and at normal incidence, and the Schlick grazing term
+(1 - F0)(1 - cos)^5 is (w - F0) / (1 - F0), i.e. 1% low. Roughness is
+sqrt(alpha); anisotropic maps become isotropic of alpha = sqrt(alpha_x alpha_y).
+
 Camera: a ``perspective`` sensor with the vertical field of view from K
 (fx = fy assumed; a mismatch is averaged), the OpenCV world-to-camera (R, t)
 turned into Mitsuba's camera-to-world (x left, y up, z forward), the image size
@@ -40,7 +51,18 @@ as the film and the principal point as ``principal_point_offset_x/y``
 
 Environment: an ``envmap`` emitter rotated 180 degrees about +y, which maps
 Mitsuba's lat-long convention (u = 0 at -z... u = atan2(x, -z) / 2 pi) onto
-``relight.envmap``'s (u = 0.5 at -z).
+``relight.envmap``'s (u = 0.5 at -z). The two also differ in what a pixel is:
+``relight.envmap`` reads a map as piecewise constant, row i covering polar
+angles [i, i + 1] pi / H; Mitsuba's ``envmap`` interpolates bilinearly between
+nodes, row i at theta = i pi / (H - 1) (poles on the first and last rows) and
+column j at u = (j + 0.5) / W (measured with ``emitter.eval``, Mitsuba 3.9).
+Copied as is, a map would be stretched by up to half a row toward the poles
+and blurred by one pixel. By default (``match_envmap``) the map is therefore
+written as ``envmap.exr`` resampled for Mitsuba (:func:`mitsuba_envmap`):
+``k`` times finer, each node the mean of the piecewise-constant map around it,
+so Mitsuba's bilinear lookups return relight's pixels except within 1/k pixel
+of their edges (a [1/4, 1/2, 1/4] blend at the fine scale, which keeps each
+row's integral).
 """
 
 from __future__ import annotations
@@ -57,12 +79,41 @@ from ..materials._maps import BLINN_PHONG
 from ._atomic import atomic_path, atomic_write_bytes
 from ._exr import write_exr
 
-__all__ = ["write_mitsuba_scene"]
+__all__ = ["mitsuba_envmap", "write_mitsuba_scene"]
 
 SCENE_VERSION = "3.0.0"
 # The tangent-space normal counts as "the mesh's own" when every covered texel
 # is within this of (0, 0, 1): then no normalmap wrapper is written.
 _FLAT_NORMAL_TOL = 1e-4
+# Rows of the resampled environment map Mitsuba reads (at least): a pixel edge
+# of a 1k map is then blended over 1/2 of its pixel, of the bundled 128-row
+# maps over 1/8.
+_ENV_MIN_ROWS = 1024
+# Blend weight of the specular lobe for fresnel="schlick" (see the module docstring).
+_SCHLICK_WEIGHT = 0.99
+
+
+def mitsuba_envmap(radiance: np.ndarray, refine: int | None = None) -> np.ndarray:
+    """A lat-long map [k H + 1, k W, C] for Mitsuba's ``envmap`` (bilinear
+    between nodes, row i at theta = i pi / (k H), column j at
+    u = (j + 0.5) / (k W)) whose lookups reproduce ``radiance`` [H, W, C] read
+    as ``relight.envmap`` reads it (piecewise constant, row i over polar angles
+    [i, i + 1] pi / H): each node row is the mean of the two fine rows it
+    separates (the nearest-refined map, k = ``refine``, default the smallest
+    even k with k H >= 1024), so a pixel edge is blended over 1/k pixel and
+    every row keeps its integral. Columns are nearest-refined (Mitsuba's column
+    nodes are pixel centres)."""
+    rad = np.asarray(radiance, np.float32)
+    if rad.ndim != 3 or rad.shape[1] != 2 * rad.shape[0]:
+        raise ValueError(f"radiance must be a lat-long map [H, 2H, C], got shape {list(rad.shape)}")
+    h = rad.shape[0]
+    k = int(refine) if refine is not None else max(2, 2 * math.ceil(_ENV_MIN_ROWS / (2 * h)))
+    if k < 1:
+        raise ValueError(f"refine must be >= 1, got {refine!r}")
+    fine = np.repeat(np.repeat(rad, k, axis=0), k, axis=1)  # [k H, k W, C]
+    # Node i lies between fine rows i - 1 and i (the poles: the first and last row).
+    padded = np.concatenate([fine[:1], fine, fine[-1:]], axis=0)
+    return (0.5 * (padded[:-1] + padded[1:])).astype(np.float32)
 
 
 def _write_obj(path: Path, mesh) -> None:
@@ -120,15 +171,18 @@ def _bitmap(parent, name: str, filename: str, raw: bool = True):
 
 def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, envmap_path, *,
                         spp: int = 64, max_depth: int = 3, envmap_scale: float = 1.0,
-                        terminator_shadowing: bool = False) -> Path:
+                        terminator_shadowing: bool = False, match_envmap: bool = True,
+                        fresnel: str = "dielectric") -> Path:
     """Write ``folder/scene.xml`` (Mitsuba 3) for a fitted texture set.
 
     Args:
         folder: the scene folder (created); textures, mesh and map copy go in it.
         mesh_path: a ``stage.Mesh`` (written as ``mesh.obj``, in the frame the
             camera and maps use), or the path of an .obj/.ply already in that
-            frame (copied). OBJ is preferred: Mitsuba flips OBJ texture v on
-            load, which matches the set's row-0-at-v=1 orientation.
+            frame (.obj copied). Mitsuba flips OBJ texture v on load, which
+            matches the set's row-0-at-v=1 orientation, but not PLY's (its
+            textures would come out v-flipped), so a .ply is read with
+            ``stage.load_mesh`` and written as ``mesh.obj``.
         textures: a ``relight.io.TextureSet`` (``relight.io.read_maps``).
         camera: a pinhole ``stage.Camera``.
         envmap_path: lat-long .hdr/.exr environment map (copied into the folder).
@@ -139,10 +193,20 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
             (Conty Estevez et al. 2019; not part of the fitted model). The
             ``use_shadowing_function`` parameter needs Mitsuba >= 3.7.1; it is
             written only when the scene has a normal map.
+        match_envmap: write the map as ``envmap.exr`` resampled by
+            :func:`mitsuba_envmap` so that Mitsuba sees the piecewise-constant
+            map ``relight.envmap`` renders with (default); False copies the
+            file as is (Mitsuba then reads its rows as nodes from pole to
+            pole, bilinearly: a stretch of up to half a row).
+        fresnel: "dielectric" (default: ``roughconductor`` with the exact
+            dielectric curve of F0) or "schlick" (``principled`` metallic,
+            the fitted model's Schlick Fresnel; see the module docstring).
 
     Returns the path of scene.xml. See the module docstring for the BSDF mapping.
     """
     folder = Path(folder)
+    if fresnel not in ("dielectric", "schlick"):
+        raise ValueError(f"fresnel must be 'dielectric' or 'schlick', got {fresnel!r}")
     envmap_path = Path(envmap_path)
     if not envmap_path.is_file():
         raise FileNotFoundError(f"{envmap_path}: environment map not found")
@@ -159,8 +223,13 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
             raise FileNotFoundError(f"{src}: mesh file not found")
         if src.suffix.lower() not in (".obj", ".ply"):
             raise ValueError(f"{src}: Mitsuba export needs an .obj or .ply mesh (or pass a stage.Mesh)")
-        mesh_name = "mesh" + src.suffix.lower()
-        _copy_atomic(src, folder / mesh_name)
+        mesh_name = "mesh.obj"
+        if src.suffix.lower() == ".obj":
+            _copy_atomic(src, folder / mesh_name)
+        else:
+            import stage
+
+            _write_obj(folder / mesh_name, stage.load_mesh(src))
     else:
         mesh_name = "mesh.obj"
         _write_obj(folder / mesh_name, mesh_path)
@@ -180,12 +249,29 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     write_exr(tex_dir / "alpha_u.exr", alpha[..., 0].astype(np.float32))
     write_exr(tex_dir / "alpha_v.exr", alpha[..., 1].astype(np.float32))
     write_exr(tex_dir / "eta.exr", eta.astype(np.float32))
+    if fresnel == "schlick":
+        w = _SCHLICK_WEIGHT
+        write_exr(tex_dir / "diffuse_blend.exr", (diffuse / (1.0 - w)).astype(np.float32))
+        write_exr(tex_dir / "base_color.exr", np.repeat((f0 / w)[..., None], 3, -1).astype(np.float32))
+        rough = np.sqrt(np.sqrt(np.maximum(alpha[..., 0], 0.0) * np.maximum(alpha[..., 1], 0.0)))
+        write_exr(tex_dir / "roughness.exr", rough.astype(np.float32))
     n_ts = np.asarray(textures.normal_ts, np.float64)
     use_normalmap = bool(np.any(np.abs(n_ts[cov] - [0.0, 0.0, 1.0]) > _FLAT_NORMAL_TOL))
     if use_normalmap:
         write_exr(tex_dir / "normal_ts.exr", (0.5 * n_ts + 0.5).astype(np.float32))
-    env_name = "envmap" + envmap_path.suffix.lower()
-    _copy_atomic(envmap_path, folder / env_name)
+    if match_envmap:
+        from ._exr import read_exr
+        from ._hdr import read_hdr
+
+        suffix = envmap_path.suffix.lower()
+        if suffix not in (".hdr", ".exr"):
+            raise ValueError(f"{envmap_path}: environment map must be .hdr or .exr")
+        env = read_hdr(envmap_path) if suffix == ".hdr" else read_exr(envmap_path)
+        env_name = "envmap.exr"
+        write_exr(folder / env_name, mitsuba_envmap(np.asarray(env)[..., :3]))
+    else:
+        env_name = "envmap" + envmap_path.suffix.lower()
+        _copy_atomic(envmap_path, folder / env_name)
 
     # Scene.
     scene = ET.Element("scene", version=SCENE_VERSION)
@@ -235,6 +321,17 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
         # has no such term, so it is off unless asked for.
         _sub(outer, "boolean", name="use_shadowing_function", value="true" if terminator_shadowing else "false")
     blend = _sub(outer, "bsdf", type="blendbsdf")
+    if fresnel == "schlick":
+        _sub(blend, "float", name="weight", value=f"{_SCHLICK_WEIGHT:.9g}")
+        diff = _sub(blend, "bsdf", type="diffuse")
+        _bitmap(diff, "reflectance", "mitsuba/diffuse_blend.exr", raw=True)
+        pr = _sub(blend, "bsdf", type="principled")
+        _bitmap(pr, "base_color", "mitsuba/base_color.exr", raw=True)
+        _bitmap(pr, "roughness", "mitsuba/roughness.exr", raw=True)
+        _sub(pr, "float", name="metallic", value="1")
+        _sub(pr, "float", name="spec_tint", value="0")
+        _sub(pr, "float", name="anisotropic", value="0")
+        return _write_xml(folder, scene)
     _sub(blend, "float", name="weight", value="0.5")
     diff = _sub(blend, "bsdf", type="diffuse")
     # raw: linear EXR data used as is (2 rho_d may exceed 1, which Mitsuba's
@@ -248,10 +345,13 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     _sub(cond, "rgb", name="k", value="0")
     _sub(cond, "float", name="specular_reflectance", value="2")
 
+    return _write_xml(folder, scene)
+
+
+def _write_xml(folder: Path, scene) -> Path:
     ET.indent(scene)
-    comment = ("<!-- relight texture set exported for Mitsuba 3: blendbsdf(0.5) of diffuse(2 rho_d) and a GGX "
-               "roughconductor(eta from F0, k = 0, specular_reflectance 2) = rho_d/pi + GGX spec. "
-               "See docs/cli.md. Lengths in mm. -->\n")
+    comment = ("<!-- relight texture set exported for Mitsuba 3: rho_d/pi + GGX specular as a blendbsdf "
+               "(the mapping: relight/io/_mitsuba.py, docs/cli.md). Lengths in mm. -->\n")
     xml = '<?xml version="1.0" encoding="utf-8"?>\n' + comment + ET.tostring(scene, encoding="unicode") + "\n"
     path = folder / "scene.xml"
     atomic_write_bytes(path, lambda fh: fh.write(xml.encode()))

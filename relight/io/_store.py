@@ -569,6 +569,22 @@ class CaptureStore:
             rad = rad.astype(dtype, copy=False)
         return rad, msk.astype(bool, copy=False)
 
+    def read_mask(self, views=None, lights=None, samples=None) -> np.ndarray:
+        """The mask [V', L', P'] (bool) of :meth:`read`'s selection, reading only the
+        mask array (no radiance chunk is decoded: the fitter's counting pass, texel
+        coverage). Raises StoreChangedError if the store was replaced during the read."""
+        sel = (_selector(views, self.n_views, "views", self.path),
+               _selector(lights, self.n_lights, "lights", self.path),
+               _selector(samples, self.n_samples, "samples", self.path))
+        self._check_generation()
+        try:
+            msk = np.asarray(self._mask.get_orthogonal_selection(sel))
+        except Exception:
+            self._check_generation()
+            raise
+        self._check_generation()
+        return msk.astype(bool, copy=False)
+
     def iter_sample_chunks(self, n: int | None = None, dtype=None
                            ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
         """Yield ``(sample slice, radiance [V, L, n', C], mask [V, L, n'])`` over

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -29,8 +30,8 @@ from ._errors import ImageFormatError
 from ._store import is_capture_store, open_capture_store
 from ._texture_set import TextureSet, read_maps
 
-__all__ = ["TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_size_warning", "mesh_spec",
-           "spec_mesh", "texel_surface", "MESH_UNITS"]
+__all__ = ["SampleSubset", "TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_size_warning",
+           "mesh_spec", "open_texel_capture", "spec_mesh", "texel_surface", "MESH_UNITS"]
 
 
 # Length units a mesh file may be in, as millimetres per unit.
@@ -131,12 +132,131 @@ def texel_surface(spec: Mapping, resolution, where: str = "") -> tuple[stage.Mes
 
 
 class TexelCapture(NamedTuple):
-    """What :func:`load_texel_capture` returns (unpacks as a 4-tuple)."""
+    """What :func:`load_texel_capture` and :func:`open_texel_capture` return (unpacks as a 4-tuple)."""
 
-    capture: stage.Capture  # over the texels with at least one valid observation
+    capture: stage.Capture  # over the texels with at least one valid observation (open_texel_capture: a SampleSubset)
     surface: stage.Surface  # those texels (a subset of the full texel grid)
     mesh: stage.Mesh
     metadata: dict  # capture.json's metadata; metadata["surface"] is the mesh spec
+
+
+class SampleSubset:
+    """A capture source restricted to some of its samples, read lazily: what
+    :func:`relight.fit` streams from (``shape``, ``rig`` / ``cameras``,
+    ``read(samples=slice)``, ``read_mask(samples=slice)``).
+
+    ``source``: a capture store (``relight.io.open_capture_store``) or a
+    capture folder (``relight.io.open_capture``); ``index``: the source's
+    sample indices, strictly increasing; sample i of the view is sample
+    ``index[i]`` of the source. A store is read in runs of contiguous indices
+    (neighbouring runs merged while their span stays within ``max(2 n,
+    store sample chunk)`` for n selected samples, so memory is bounded by a
+    few times the selection); a folder one image at a time (each EXR is
+    decoded whole: a folder is the slow path). Radiance comes back float32.
+    ``rig`` / ``cameras`` are the source's as ``stage`` objects."""
+
+    def __init__(self, source, index):
+        idx = np.asarray(index, np.int64).reshape(-1)
+        V, L, P, C = (int(s) for s in source.shape)
+        if idx.size == 0 or idx.min() < 0 or idx.max() >= P or np.any(np.diff(idx) <= 0):
+            raise ValueError(f"SampleSubset: index must be non-empty, strictly increasing and in [0, {P})")
+        self.source, self.index = source, idx
+        self.shape = (V, L, int(idx.size), C)
+        self.n_views, self.n_lights, self.n_samples, self.n_channels = self.shape
+        self._store = callable(getattr(source, "read_mask", None)) and callable(getattr(source, "read", None))
+        self._rig = self._cameras = None
+
+    def __repr__(self) -> str:
+        return f"SampleSubset({self.source!r}, {self.n_samples} of {self.source.shape[2]} samples)"
+
+    @property
+    def rig(self) -> stage.Rig:
+        if self._rig is None:
+            self._rig = self.source.stage_rig()
+        return self._rig
+
+    @property
+    def cameras(self) -> tuple[stage.Camera, ...]:
+        if self._cameras is None:
+            self._cameras = tuple(self.source.stage_cameras())
+        return self._cameras
+
+    def stage_rig(self) -> stage.Rig:
+        return self.rig
+
+    def stage_cameras(self) -> tuple[stage.Camera, ...]:
+        return self.cameras
+
+    def _selected(self, samples) -> np.ndarray:
+        if samples is None:
+            return self.index
+        if not isinstance(samples, slice) or samples.step not in (None, 1):
+            raise ValueError(f"SampleSubset: samples must be None or a slice with step 1, got {samples!r}")
+        s, e, _ = samples.indices(self.n_samples)
+        if e <= s:
+            raise ValueError(f"SampleSubset: samples {samples!r} selects nothing of {self.n_samples}")
+        return self.index[s:e]
+
+    def _runs(self, idx: np.ndarray):
+        """(start, stop, positions) spans of the source covering ``idx``, each at most max(2 n, chunk) long."""
+        limit = max(2 * len(idx), int(getattr(self.source, "chunks", (0, 0, 1))[2]))
+        i = 0
+        while i < len(idx):
+            j = int(np.searchsorted(idx, idx[i] + limit, side="left"))
+            yield int(idx[i]), int(idx[j - 1]) + 1, i, j
+            i = j
+
+    def read(self, views=None, lights=None, samples=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(radiance [V, L, n, C] float32, mask [V, L, n] bool)`` of the selected samples (all views and
+        lights: ``views`` / ``lights`` must be None)."""
+        if views is not None or lights is not None:
+            raise ValueError("SampleSubset.read: reads every view and light (views / lights must be None)")
+        idx = self._selected(samples)
+        V, L, _, C = self.shape
+        rad = np.empty((V, L, len(idx), C), np.float32)
+        msk = np.empty((V, L, len(idx)), bool)
+        if self._store:
+            for a, b, i, j in self._runs(idx):
+                r, m = self.source.read(samples=slice(a, b))
+                rad[:, :, i:j] = r[:, :, idx[i:j] - a]
+                msk[:, :, i:j] = m[:, :, idx[i:j] - a]
+            return rad, msk
+        lo, hi = int(idx[0]), int(idx[-1]) + 1
+        for v in range(V):
+            for light in range(L):
+                r, m = self.source.read_image(v, light, samples=slice(lo, hi))
+                rad[v, light] = r[idx - lo]
+                msk[v, light] = True if m is None else m[idx - lo]
+        return rad, msk
+
+    def read_mask(self, samples=None) -> np.ndarray:
+        """The mask [V, L, n] of the selected samples; a store decodes no radiance."""
+        if not self._store:
+            return self.read(samples=samples)[1]
+        idx = self._selected(samples)
+        V, L, _, _ = self.shape
+        msk = np.empty((V, L, len(idx)), bool)
+        for a, b, i, j in self._runs(idx):
+            msk[:, :, i:j] = self.source.read_mask(samples=slice(a, b))[:, :, idx[i:j] - a]
+        return msk
+
+
+def _open_texel(folder):
+    """(reader, is_store, where, mesh, full surface) of a texel capture folder or store, checked."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such capture folder")
+    store = not (folder / "capture.json").exists() and is_capture_store(folder)
+    reader = open_capture_store(folder) if store else open_capture(folder)
+    where = str(reader.manifest_path if store else folder / "capture.json")
+    info = reader.metadata.get("surface")
+    if reader.metadata.get("space") != "texel" or not isinstance(info, Mapping):
+        raise ImageFormatError(f"{where}: not a texel-space capture (metadata.space = 'texel' and metadata.surface, "
+                               "as `relight simulate` writes, are needed to rebuild the surface)")
+    mesh, full = texel_surface(info, info.get("resolution"), where=where)
+    if tuple(full.resolution) != tuple(reader.sample_shape):
+        raise ImageFormatError(f"{where}: images are {reader.sample_shape} but the texel grid is {full.resolution}")
+    return reader, store, where, mesh, full
 
 
 def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | None = None) -> TexelCapture:
@@ -153,26 +273,16 @@ def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
 
     ``folder`` may also be a capture store (``relight.io.open_capture_store``:
     a ``.zarr`` folder, read one sample chunk at a time, progress counting
-    sample chunks).
+    sample chunks). The whole capture ends up in memory:
+    :func:`open_texel_capture` is the streaming counterpart.
 
     Raises FileNotFoundError or ImageFormatError / ValueError naming the file
     and the problem.
     """
     folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such capture folder")
-    store = not (folder / "capture.json").exists() and is_capture_store(folder)
-    reader = open_capture_store(folder) if store else open_capture(folder)
-    where = str(reader.manifest_path if store else folder / "capture.json")
-    info = reader.metadata.get("surface")
-    if reader.metadata.get("space") != "texel" or not isinstance(info, Mapping):
-        raise ImageFormatError(f"{where}: not a texel-space capture (metadata.space = 'texel' and metadata.surface, "
-                               "as `relight simulate` writes, are needed to rebuild the surface)")
+    reader, store, where, mesh, full = _open_texel(folder)
     rig = reader.stage_rig()
     cams = reader.stage_cameras()
-    mesh, full = texel_surface(info, info.get("resolution"), where=where)
-    if tuple(full.resolution) != tuple(reader.sample_shape):
-        raise ImageFormatError(f"{where}: images are {reader.sample_shape} but the texel grid is {full.resolution}")
     idx = np.asarray(full.texel_index)
     V, L = reader.n_views, reader.n_lights
     if store:
@@ -191,7 +301,57 @@ def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
         raise ImageFormatError(f"{folder}: no valid observation on any texel of the mesh")
     capture = stage.Capture(radiance=jnp.asarray(rad[:, :, keep]), mask=jnp.asarray(valid[:, :, keep]), rig=rig,
                             cameras=cams)
-    return TexelCapture(capture, full.subset(keep), mesh, dict(reader.metadata))
+    return TexelCapture(capture, _rows(full, keep), mesh, dict(reader.metadata))
+
+
+def _rows(surface: stage.Surface, index) -> stage.Surface:
+    """``surface.subset(index)`` taken on the host (NumPy rows, then device arrays): the same arrays,
+    without a gather program compiled for each texel count."""
+    index = np.asarray(index)
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]), surface)
+
+
+def _seen(reader, store: bool, idx: np.ndarray, progress) -> np.ndarray:
+    """[len(idx)] bool: the texels ``idx`` with a valid observation in some view under some light, from
+    the mask only (a store's mask array, one sample chunk at a time; a folder's valid channels, one image
+    at a time; a folder without them: every texel)."""
+    if not reader.has_valid:
+        return np.ones(len(idx), bool)
+    seen = np.zeros(len(idx), bool)
+    if store:
+        n = reader.chunks[2]
+        bar = stage.Phase(progress, "read mask", -(-reader.n_samples // n))
+        for s in range(0, reader.n_samples, n):
+            e = min(s + n, reader.n_samples)
+            here = np.nonzero((idx >= s) & (idx < e))[0]
+            if here.size:
+                seen[here] = reader.read_mask(samples=slice(s, e)).any(axis=(0, 1))[idx[here] - s]
+            bar.advance(1)
+        return seen
+    bar = stage.Phase(progress, "read mask", reader.n_views * reader.n_lights)
+    for v in range(reader.n_views):
+        for light in range(reader.n_lights):
+            _, m = reader.read_image(v, light)
+            seen |= m[idx]
+            bar.advance(1)
+    return seen
+
+
+def open_texel_capture(folder: str | os.PathLike, progress: stage.Progress | None = None) -> TexelCapture:
+    """:func:`load_texel_capture` without loading the capture: the same surface,
+    mesh and metadata, and as ``capture`` a :class:`SampleSubset` of the folder
+    or store over the same texels (those with a valid observation), which
+    :func:`relight.fit` / ``relight.fitting.fit_parts`` read one block at a
+    time. Finding those texels reads the mask only (a store's mask array; a
+    folder's images, once); ``progress`` counts it, phase "read mask".
+    Raises as :func:`load_texel_capture`."""
+    folder = Path(folder)
+    reader, store, _, mesh, full = _open_texel(folder)
+    idx = np.asarray(full.texel_index, np.int64)
+    keep = np.nonzero(_seen(reader, store, idx, progress))[0]
+    if len(keep) == 0:
+        raise ImageFormatError(f"{folder}: no valid observation on any texel of the mesh")
+    return TexelCapture(SampleSubset(reader, idx[keep]), _rows(full, keep), mesh, dict(reader.metadata))
 
 
 class TexelMaps(NamedTuple):

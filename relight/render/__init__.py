@@ -4,10 +4,11 @@ maps, a surface and an environment map. See docs/relight_render.md.
 
 Model-based methods (``METHODS``): "rig" (the environment sampled at a light
 rig's lights, what OLAT data supports), "dense" (quadrature over a lat-long
-grid with ray-cast visibility), "fast" (SH irradiance + split-sum specular +
-ambient occlusion) and "reference" (Monte Carlo with multiple importance
-sampling). Each is also a typed method object holding its settings
-(``Rig``, ``Dense``, ``Fast``, ``Reference``), accepted as ``method=``."""
+grid with ray-cast visibility), "lights" (a median-cut light set of equal
+energy, Debevec 2005, with ray-cast visibility per light), "fast" (SH
+irradiance + split-sum specular + ambient occlusion) and "reference" (Monte
+Carlo with multiple importance sampling). Each is also a typed method object holding its settings
+(``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``), accepted as ``method=``."""
 
 from ._image_based import image_based_view as image_based_view
 from ._image_based import nearest_view as nearest_view
@@ -19,12 +20,13 @@ from ._olat import relight_olat_sweep as relight_olat_sweep
 from ._options import AbstractMethod as AbstractMethod
 from ._options import Dense as Dense
 from ._options import Fast as Fast
+from ._options import Lights as Lights
 from ._options import Reference as Reference
 from ._options import Rig as Rig
 from ._view import orbit_camera as orbit_camera
 from ._view import render_view as render_view
 from ._view import turntable as turntable
 
-__all__ = ["AbstractMethod", "DEFAULTS", "Dense", "Fast", "METHODS", "Reference", "Rig", "image_based_view",
+__all__ = ["AbstractMethod", "DEFAULTS", "Dense", "Fast", "Lights", "METHODS", "Reference", "Rig", "image_based_view",
            "nearest_view", "orbit_camera", "relight_olat", "relight_olat_sweep", "render_samples", "render_view",
            "turntable"]

@@ -26,6 +26,9 @@ Methods (``method=``):
 * ``"dense"``: the midpoint rule over the pixels of the environment
   area-resampled to ``resolution`` x 2 ``resolution``, each pixel a distant
   light with ray-cast visibility.
+* ``"lights"``: the environment cut by median cut (Debevec 2005) into
+  ``lights`` regions of equal energy, each a distant light at its energy
+  centroid carrying the region's exact integral, with ray-cast visibility.
 * ``"fast"``: diffuse from order-2 SH irradiance (Ramamoorthi & Hanrahan 2001,
   eq. 7-9) at the bent normal times ambient occlusion; specular by the
   split-sum approximation (Karis 2013): GGX-prefiltered environment x DFG
@@ -59,6 +62,7 @@ from ..envmap._sh import sh_irradiance, sh_project
 from ..envmap._weights import light_weights, light_weights_barycentric
 from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE, LadderBRDF, MaterialMaps
 from . import _fast as fast
+from ._lights import median_cut, region_strength
 from ._options import _BY_NAME, METHODS, AbstractMethod, _int_at_least, resolve_method
 
 __all__ = ["METHODS", "DEFAULTS", "render_samples"]
@@ -73,7 +77,9 @@ _COMMON = {"chunk": None, "eta": 1.4, "operator": None, "rotation": None, "dtype
 # temporaries of 4096 x 64 x 3 float32 ~ 30 MB).
 _DIR_BLOCK = 64
 # Directions per kernel call (padded): one compilation serves every rig and
-# dense resolution; larger sets loop over calls.
+# dense resolution; larger sets loop over calls. Sets smaller than that are
+# padded to the next power of two >= _DIR_BLOCK only (64 or 128: at most three
+# compilations), so a 64-light set does not pay for 256 directions.
 _DIR_CALL = 256
 # Monte Carlo directions per pass (per sample): one compilation serves every
 # sample count; more samples run more passes (averaged).
@@ -178,7 +184,8 @@ class Lighting:
     method: str
     settings: dict
     env: EnvMap
-    dirs: Any = None          # rig / dense: [D, 3] world directions
+    dirs: Any = None          # rig / dense / lights: [D, 3] world directions (lights: of the unrotated map)
+    strength: Any = None      # lights: [D, C] region integrals
     dom: Any = None           # dense: [D] solid angles
     lowres: Any = None        # dense: [h, 2h, C] area-resampled map
     rig: Any = None           # rig: stage.Rig
@@ -190,7 +197,7 @@ class Lighting:
     def num_directions(self) -> int:
         if self.method == "rig":
             return self.rig.num_lights
-        if self.method == "dense":
+        if self.method in ("dense", "lights"):
             return int(self.dirs.shape[0])
         if self.method == "fast":
             return int(self.settings["ao_rays"])
@@ -218,6 +225,18 @@ def prepare_lighting(env: EnvMap, method: str, settings: dict) -> Lighting:
         lt.lowres = fast.area_resample(env.radiance, h)
         lt.dirs = _latlong_dirs_np(h)
         lt.dom = latlong_solid_angles(h, 2 * h, dt).reshape(-1)
+    elif method == "lights":
+        # The partition (and the light directions) come from the map's values
+        # without gradient; the strengths are exact region integrals of the
+        # radiance, so derivatives flow to every pixel.
+        with jax.ensure_compile_time_eval():
+            conc = _concrete(jax.lax.stop_gradient(env.radiance))
+        if conc is None:
+            raise ValueError("method 'lights' cuts the environment into regions from its values: pass a concrete "
+                             "env (not traced under jit); gradients with respect to it still flow")
+        labels, dirs = median_cut(conc, s["lights"])
+        lt.dirs = dirs
+        lt.strength = region_strength(env.radiance, labels, len(dirs)).astype(dt)
     elif method == "fast":
         lt.sh = sh_project(env, 2)
         lt.levels, _ = fast.prefilter_levels(env.radiance, s["levels"], s["prefilter_rows"], s["prefilter_samples"])
@@ -246,6 +265,10 @@ def _strength(lt: Lighting, rotation) -> tuple[Array, Array, bool]:
         inten = jnp.asarray(rig.intensity, dt)
         pos = jnp.asarray(rig.position, dt) if rig.near_field else d
         return pos, w * inten, bool(rig.near_field)
+    if lt.method == "lights":
+        d = jnp.asarray(lt.dirs, dt)
+        # Light from d arrives from R d (row vectors: d R^T); exact, nothing is resampled.
+        return (d if rotation is None else d @ jnp.asarray(rotation, dt).T), lt.strength, False
     # dense
     h = lt.lowres.shape[0]
     low = lt.lowres
@@ -435,13 +458,17 @@ class Geometry:
     ao: Any = None
     bent: Any = None
     rays: Any = None
+    mesh: Any = None       # lights: to cast the rotated lights' rays (an environment rotation moves them)
+    surface: Any = None
 
 
 def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, mesh, visibility=None) -> Geometry:
     P = surface.num_samples
     g = Geometry()
-    if lt.method in ("rig", "dense"):
+    if lt.method in ("rig", "dense", "lights"):
         D = lt.num_directions()
+        if lt.method == "lights":
+            g.mesh, g.surface = mesh, surface
         if visibility is not None:
             shp = visibility.shape if isinstance(visibility, stage.PackedMask) else np.shape(visibility)
             if tuple(shp) != (P, D):
@@ -450,6 +477,8 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
         elif mesh is not None:
             if lt.method == "rig":
                 g.vis = stage.light_visibility(mesh, surface, lt.rig, packed=True)
+            elif lt.method == "lights":
+                g.vis = stage.PackedMask.pack(direction_visibility(mesh, surface, np.asarray(lt.dirs)))
             else:
                 g.vis = stage.PackedMask.pack(direction_visibility(mesh, surface, lt.dirs))
         return g
@@ -486,15 +515,20 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
 # --------------------------------------------------------------------------- shading
 
 def _default_chunk(lt: Lighting) -> int:
-    if lt.method in ("rig", "dense"):
+    if lt.method in ("rig", "dense", "lights"):
         return _CHUNK_DIRECTIONAL
     if lt.method == "fast":
         return _CHUNK_FAST
     return max(16, _MC_PAIRS // min(lt.settings["samples"], _MC_PASS))
 
 
+def _dir_call(n_dirs: int) -> int:
+    """Directions per kernel call for a set of ``n_dirs``."""
+    return _DIR_CALL if n_dirs >= _DIR_CALL else max(_DIR_BLOCK, 1 << (n_dirs - 1).bit_length())
+
+
 def _pad_directions(light, strength, n_dirs):
-    pad = (-n_dirs) % _DIR_CALL
+    pad = (-n_dirs) % _dir_call(n_dirs)
     if pad:
         light = jnp.concatenate([light, jnp.repeat(light[-1:], pad, axis=0)])
         strength = jnp.concatenate([strength, jnp.zeros((pad,) + strength.shape[1:], strength.dtype)])
@@ -530,9 +564,11 @@ def shade(lt: Lighting, geo: Geometry, maps: MaterialMaps, surface: stage.Surfac
     chunk = min(s["chunk"] or _default_chunk(lt), max(64, 1 << (P - 1).bit_length()))
     n_chunks = -(-P // chunk)
 
-    if lt.method in ("rig", "dense"):
+    geo_vis = geo.vis
+    if lt.method in ("rig", "dense", "lights"):
         light, strength, near = _strength(lt, rotation)
         D = light.shape[0]
+        geo_vis = _light_visibility(lt, geo, light, rotation)
         light, strength, pad = _pad_directions(light, strength, D)
     elif lt.method == "fast":
         t_avg = jnp.asarray(fast.mean_transmittance(float(s["eta"])), dt)
@@ -544,22 +580,26 @@ def shade(lt: Lighting, geo: Geometry, maps: MaterialMaps, surface: stage.Surfac
         key = jax.random.PRNGKey(0) if key is None else key
 
     outs, es = [], []
+    pad_idx = np.minimum(np.arange(n_chunks * chunk), P - 1)
+    chunks = _Chunks(pad_idx, chunk, n_chunks, n_chunks * chunk != P, (pos, wo, ng))
+    m_pad = tuple(chunks.padder(a) for a in m_all)
     for c in range(n_chunks):
         s0 = c * chunk
         n = min(chunk, P - s0)
-        idx = np.minimum(np.arange(s0, s0 + chunk), P - 1)
-        take = (lambda a, idx=idx: a[idx]) if chunk != P else (lambda a: a)
-        m = tuple(take(a) for a in m_all)
-        if lt.method in ("rig", "dense"):
-            if geo.vis is None:
+        idx = pad_idx[s0:s0 + chunk]
+        m = tuple(a[s0:s0 + chunk] for a in m_pad) if n_chunks > 1 else m_pad
+        take = functools.partial(chunks.take, s0)
+        if lt.method in ("rig", "dense", "lights"):
+            if geo_vis is None:
                 v = np.ones((chunk, D), bool)
             else:
-                v = _rows(geo.vis, idx)
+                v = _rows(geo_vis, idx)
             if pad:
                 v = np.concatenate([v, np.zeros((chunk, pad), bool)], axis=1)
             out = e = None
-            for d0 in range(0, v.shape[1], _DIR_CALL):
-                d1 = d0 + _DIR_CALL
+            call = _dir_call(D)
+            for d0 in range(0, v.shape[1], call):
+                d1 = d0 + call
                 o, ee = _directional_kernel(m, take(pos), take(wo), light[d0:d1], strength[d0:d1],
                                             jnp.asarray(v[:, d0:d1]), float(s["eta"]), near, want_sss)
                 out, e = (o, ee) if out is None else (out + o, e + ee)
@@ -597,6 +637,38 @@ def shade(lt: Lighting, geo: Geometry, maps: MaterialMaps, surface: stage.Surfac
         seen = is_sss[:, 0] & (wo_l[:, 2] > 0)
         out = out + stage.subsurface_exitance(M, wo_l, float(s["eta"]), seen)
     return jnp.where(jnp.isfinite(out), out, 0.0), M
+
+
+def _light_visibility(lt: Lighting, geo: Geometry, light, rotation):
+    """The [P, D] visibility the directional kernel reads: the cached one, or
+    for "lights" under a rotation (the lights moved with the environment) their
+    shadows cast anew."""
+    if lt.method == "lights" and rotation is not None:
+        if geo.mesh is not None:
+            return stage.PackedMask.pack(direction_visibility(geo.mesh, geo.surface, np.asarray(light, np.float64)))
+        if geo.vis is not None:
+            raise ValueError("method 'lights' with a rotation moves its lights: pass mesh= to cast their shadows "
+                             "(a given visibility= holds the unrotated lights' shadows)")
+    return geo.vis
+
+
+class _Chunks:
+    """Fixed-shape chunks of per-sample arrays: one gather pads an array to whole
+    chunks (repeating the last sample), each chunk is then a static slice (a
+    gather per array and chunk cost ~0.1 s per view in dispatch overhead).
+    The arrays in ``cached`` are padded once."""
+
+    def __init__(self, pad_idx, chunk, n_chunks, padded, cached):
+        self.pad_idx, self.chunk, self.n_chunks, self.padded = pad_idx, chunk, n_chunks, padded
+        self.cached = [(a, self.padder(a)) for a in cached]
+
+    def padder(self, a):
+        return a[self.pad_idx] if self.padded else a
+
+    def take(self, s0, a):
+        p = next((padded for orig, padded in self.cached if orig is a), None)
+        p = self.padder(a) if p is None else p
+        return p[s0:s0 + self.chunk] if self.n_chunks > 1 else p
 
 
 def _concrete(x):
@@ -648,8 +720,8 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
         env: ``relight.envmap.EnvMap``.
         wo_world: [P, 3] or [3] unit directions toward the viewer (world).
         method: a method object (``relight.render.Rig``, ``Dense``, ``Fast``,
-            ``Reference``, holding that method's settings) or one of the
-            string names ``METHODS`` = ("rig", "dense", "fast", "reference"),
+            ``Reference``, ``Lights``, holding that method's settings) or one of
+            the string names ``METHODS`` = ("rig", "dense", "fast", "reference", "lights"),
             which take the method's settings as keyword arguments (below).
         mesh: ``stage.Mesh`` for shadows (visibility is computed once here;
             pass ``visibility`` to reuse it).
@@ -673,6 +745,9 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
         "barycentric"; ``supersample`` (1) of the weights.
         "dense": ``resolution`` (32) rows of the lat-long quadrature grid
         (2 resolution^2 distant lights, each the area mean of the map).
+        "lights": ``lights`` (256) median-cut regions of equal energy, each a
+        distant light (``visibility`` then has D = lights columns, in the
+        order of ``relight.render._lights.median_cut``).
         "fast": ``levels`` (7) prefiltered roughness levels,
         ``prefilter_rows`` (128), ``prefilter_samples`` (64) GGX samples
         per prefiltered texel, ``ao_rays`` (64) visibility rays per sample for

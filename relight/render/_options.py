@@ -1,9 +1,9 @@
-"""Render methods as typed objects: ``Rig``, ``Dense``, ``Fast``, ``Reference``.
+"""Render methods as typed objects: ``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``.
 
 Each is a small final equinox Module holding one method's settings, checked
 when it is built (a ValueError naming the setting). ``render_samples``,
 ``render_view`` and ``turntable`` take one as ``method=``, alongside the string
-names (``"rig"``, ``"dense"``, ``"fast"``, ``"reference"``, the CLI's
+names (``"rig"``, ``"dense"``, ``"lights"``, ``"fast"``, ``"reference"``, the CLI's
 spellings), which map to the defaults; string names with method-specific
 keyword settings (``method="dense", resolution=16``) keep working and build
 the same object. The settings shared by every method (``chunk``, ``eta``,
@@ -14,6 +14,8 @@ the same object. The settings shared by every method (``chunk``, ``eta``,
   lights (Debevec et al. 2000), lit by the rig's own near-field lights.
 * ``Dense``: ``rows`` (32; keyword ``resolution``) -- the midpoint rule over
   the map area-averaged to rows x 2 rows pixels, ray-cast shadows.
+* ``Lights``: ``lights`` (256) -- the environment cut into regions of equal
+  energy (median cut, Debevec 2005), each a distant light with ray-cast shadows.
 * ``Fast``: ``levels`` (7), ``prefilter_rows`` (128), ``prefilter_samples``
   (64), ``ao_rays`` (64), ``lut_size`` (32) -- SH irradiance (Ramamoorthi &
   Hanrahan 2001) + split-sum specular (Karis 2013) + ambient occlusion.
@@ -33,7 +35,7 @@ import stage
 
 from . import _fast as fast
 
-__all__ = ["AbstractMethod", "Dense", "Fast", "Reference", "Rig", "resolve_method"]
+__all__ = ["AbstractMethod", "Dense", "Fast", "Lights", "Reference", "Rig", "resolve_method"]
 
 
 def _int_at_least(owner: str, name: str, value, lo: int, alias: str | None = None) -> None:
@@ -93,6 +95,22 @@ class Dense(AbstractMethod):
         _int_at_least("dense", "rows", self.rows, 2, alias="resolution")
 
 
+class Lights(AbstractMethod):
+    """The environment cut by median cut (Debevec 2005) into ``lights``
+    regions of equal energy, each a distant light at its energy centroid
+    carrying the region's exact integral, with ray-cast visibility per light
+    (``lights`` rays per sample). Converges to the midpoint rule of the map at
+    its full resolution as ``lights`` grows (see ``relight/render/_lights.py``)."""
+
+    lights: int = 256
+
+    name: ClassVar[str] = "lights"
+    KEYWORDS: ClassVar[dict[str, str]] = {"lights": "lights"}
+
+    def __check_init__(self):
+        _int_at_least("lights", "lights", self.lights, 1)
+
+
 class Fast(AbstractMethod):
     """Order-2 SH irradiance at the bent normal x ambient occlusion
     (Ramamoorthi & Hanrahan 2001, eq. 7-9) and split-sum specular (Karis 2013)
@@ -139,7 +157,7 @@ class Reference(AbstractMethod):
             raise ValueError(f"method 'reference': heuristic must be 'balance' or 'power', got {self.heuristic!r}")
 
 
-_BY_NAME: dict[str, type[AbstractMethod]] = {cls.name: cls for cls in (Rig, Dense, Fast, Reference)}
+_BY_NAME: dict[str, type[AbstractMethod]] = {cls.name: cls for cls in (Rig, Dense, Fast, Reference, Lights)}
 METHODS = tuple(_BY_NAME)
 
 
@@ -157,7 +175,7 @@ def resolve_method(method, settings: dict) -> tuple[AbstractMethod, dict]:
         return method, dict(settings)
     if not isinstance(method, str) or method not in _BY_NAME:
         raise ValueError(f"unknown relighting method {method!r}; expected one of {METHODS} or a method object "
-                         "(relight.render.Rig, Dense, Fast, Reference)")
+                         "(relight.render.Rig, Dense, Lights, Fast, Reference)")
     cls = _BY_NAME[method]
     own = {cls.KEYWORDS[k]: settings[k] for k in settings if k in cls.KEYWORDS}
     rest = {k: v for k, v in settings.items() if k not in cls.KEYWORDS}

@@ -198,7 +198,7 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     ``background``: rays that miss see the (rotated) environment, else 0.
     ``progress(phase, 0, None)`` (``stage.Progress``) is called as each phase starts. Visibility is
     per pixel sample: cost grows with (W H supersample^2) x directions for
-    "rig"/"dense" and x samples for "reference".
+    "rig"/"dense"/"lights" and x samples for "reference".
     """
     _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
     r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)
@@ -229,9 +229,11 @@ def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh
     looked up at the pixels, the per-pixel visibility (rig/dense visibility
     masks, fast ambient occlusion and bent normals), and the environment's
     precomputation (dense grid, SH coefficients, prefiltered levels and DFG
-    table, importance-sampling tables); each frame only rotates the lookups
-    (for "rig" it recomputes the light weights from rotated light directions,
-    as ``relight.envmap.rotation_sweep_weights`` does; for "reference" it
+    table, importance-sampling tables, the median-cut light set); each frame
+    only rotates the lookups (for "lights" it rotates the lights and casts
+    their shadow rays anew; for "rig" it recomputes the light weights from
+    rotated light directions, as ``relight.envmap.rotation_sweep_weights``
+    does; for "reference" it
     re-traces its rays; with subsurface samples it recomputes the texel-space
     exitance).
 

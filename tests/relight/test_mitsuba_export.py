@@ -212,3 +212,109 @@ def test_mitsuba_normal_map_tilts_toward_the_tangent(sphere, tmp_path):
     np.testing.assert_allclose(got, expected, rtol=0.03)
     flat = rho / np.pi * np.sum(np.maximum(w @ n0, 0) * lit) * (4 * np.pi / len(w))
     assert expected > 1.25 * flat
+
+
+def test_mitsuba_envmap_reproduces_relight_pixels(sphere, tmp_path):
+    """Mitsuba's envmap rows are nodes from pole to pole (theta = i pi / (H - 1)),
+    bilinear; relight's pixels are constant over [i, i + 1] pi / H. Through the
+    exported scene (match_envmap, the default), Mitsuba's emitter returns each
+    relight pixel's value at its centre and at 3/4 of the way to its corner
+    (1e-5 relative: the resampled map blends only within 1/128 pixel of an
+    edge here), and the map's integral to 0.2%; the file copied as is
+    (match_envmap=False) is off by > 20% at some pixel centre of this random map."""
+    mi = _mitsuba()
+    from relight.envmap import latlong_directions
+    from relight.io import read_exr
+    from relight.io._mitsuba import mitsuba_envmap
+
+    mesh, surface = sphere
+    rng = np.random.default_rng(5)
+    env = rng.uniform(0.1, 2.0, (8, 16, 3)).astype(np.float32)
+    cam = stage.look_at((0.0, 0.0, 400.0), fov_deg=20.0, width=8, height=8)
+    h, w = env.shape[:2]
+
+    def lookups(path, dirs):
+        emitter = mi.load_file(str(path)).emitters()[0]
+        out = []
+        for d in dirs:
+            si = mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*(-d))
+            v = emitter.eval(si)
+            out.append((v[0], v[1], v[2]))
+        return np.asarray(out)
+
+    centre = np.asarray(latlong_directions(h, w), np.float64).reshape(-1, 3)
+    # Off-centre: 3/4 of the way to the pixel's upper-left corner, still inside the pixel.
+    th = np.pi * (np.arange(h) + 0.5 - 0.375) / h
+    ph = 2 * np.pi * (np.arange(w) + 0.5 - 0.375) / w - np.pi
+    T, Ph = np.meshgrid(th, ph, indexing="ij")
+    off = np.stack([np.sin(T) * np.sin(Ph), np.cos(T), -np.sin(T) * np.cos(Ph)], -1).reshape(-1, 3)
+    path = _scene(tmp_path / "a", mesh, surface, env, cam)
+    want = env.reshape(-1, 3)
+    np.testing.assert_allclose(lookups(path, centre), want, rtol=1e-5)
+    np.testing.assert_allclose(lookups(path, off), want, rtol=1e-5)
+    # The resampled map's integral (bilinear between nodes: trapezoid rows) equals relight's.
+    fine = mitsuba_envmap(env)
+    np.testing.assert_allclose(read_exr(path.parent / "envmap.exr"), fine, rtol=1e-6)
+    dom = np.asarray(relight.envmap.latlong_solid_angles(h, w))[..., None]
+    n = fine.shape[0] - 1
+    theta = np.pi * np.arange(n + 1) / n
+    rows = fine.mean(axis=1)  # [n + 1, C]: a bilinear row's mean over u is its nodes' mean
+    integ = 2 * np.pi * np.trapezoid(rows * np.sin(theta)[:, None], theta, axis=0)
+    np.testing.assert_allclose(integ, (env * dom).sum((0, 1)), rtol=2e-3)
+    write_maps(tmp_path / "b" / "maps", relight.material_maps(surface, 0.5), surface)
+    tex, _ = read_maps(tmp_path / "b" / "maps")
+    write_exr(tmp_path / "b" / "env.exr", env)
+    raw = write_mitsuba_scene(tmp_path / "b" / "scene", mesh, tex, cam, tmp_path / "b" / "env.exr", match_envmap=False)
+    assert np.max(np.abs(lookups(raw, centre) / want - 1)) > 0.2
+    with pytest.raises(ValueError, match="lat-long"):
+        mitsuba_envmap(np.ones((4, 4, 3)))
+
+
+def test_mitsuba_schlick_export_matches_the_model_under_a_white_furnace(sphere, tmp_path):
+    """fresnel="schlick" (principled metallic = Schlick GGX, blended 0.99 : 0.01
+    with diffuse 100 rho_d): the sphere's centre under a constant map is the
+    model's directional albedo at normal incidence rho_d + A_spec with our
+    Schlick Fresnel; 0.7% relative: Monte Carlo noise of 16 pixels x 256 spp
+    and the curvature of the sphere across them (the dielectric export needs 2%)."""
+    mi = _mitsuba()
+    mesh, surface = sphere
+    cam = stage.look_at((0.0, 0.0, 400.0), fov_deg=20.0, width=24, height=24)
+    maps = relight.material_maps(surface, np.broadcast_to(RHO_D, (surface.num_samples, 3)), F0, ALPHA)
+    write_maps(tmp_path / "maps", maps, surface)
+    tex, _ = read_maps(tmp_path / "maps")
+    write_exr(tmp_path / "env.exr", np.ones((16, 32, 3), np.float32))
+    path = write_mitsuba_scene(tmp_path / "scene", mesh, tex, cam, tmp_path / "env.exr", max_depth=2,
+                               fresnel="schlick")
+    assert "principled" in path.read_text()
+    img = np.asarray(mi.render(mi.load_file(str(path), spp=256)))
+    centre = img[10:14, 10:14].reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(centre, _directional_albedo_normal_incidence(RHO_D, F0, ALPHA), rtol=7e-3)
+    with pytest.raises(ValueError, match="fresnel"):
+        write_mitsuba_scene(tmp_path / "s2", mesh, tex, cam, tmp_path / "env.exr", fresnel="conductor")
+
+
+def test_ply_mesh_is_written_as_obj_with_the_same_uvs(sphere, tmp_path):
+    """Mitsuba flips texture v for OBJ, not for PLY: a .ply mesh is converted to
+    mesh.obj (its vertices and uvs as stage.load_mesh reads them), so the
+    texture set's orientation holds for both inputs."""
+    import trimesh
+
+    mesh, surface = sphere
+    tm = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False,
+                         visual=trimesh.visual.TextureVisuals(uv=np.asarray(mesh.uv)))
+    ply = tmp_path / "sphere.ply"
+    tm.export(ply)
+    maps = relight.material_maps(surface, 0.5)
+    write_maps(tmp_path / "maps", maps, surface)
+    tex, _ = read_maps(tmp_path / "maps")
+    env = tmp_path / "env.exr"
+    write_exr(env, np.ones((4, 8, 3), np.float32))
+    path = write_mitsuba_scene(tmp_path / "scene", ply, tex, stage.look_at((0.0, 0.0, 200.0)), env)
+    root = ET.parse(path).getroot()
+    assert [e.get("type") for e in root.iter("shape")] == ["obj"]
+    back = stage.load_mesh(path.parent / "mesh.obj")
+    ref = stage.load_mesh(ply)
+    np.testing.assert_allclose(np.asarray(back.vertices), np.asarray(ref.vertices), rtol=1e-7, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(back.uv), np.asarray(ref.uv), atol=1e-7)
+    np.testing.assert_allclose(np.asarray(ref.uv), np.asarray(mesh.uv), atol=1e-6)

@@ -61,7 +61,9 @@ def test_white_furnace_every_method(sphere):
     """Uniform environment L = 1, white Lambertian, no shadows: L_o = 1 exactly
     (int cos / pi dw = 1). Tolerances: rig 1% (Voronoi quadrature of the
     clamped cosine with 162 lights; measured 0.5%); dense 0.3% (midpoint rule
-    cut at the horizon, 32 rows); fast 0.3% (SH projection by pixel quadrature);
+    cut at the horizon, 32 rows); lights 0.6% (256 median-cut regions of the
+    16 x 32 map, each a point at its centroid: regions cut by the horizon;
+    measured 0.43%); fast 0.3% (SH projection by pixel quadrature);
     reference: mean within 0.5% and every sample within 6 standard errors of 1
     (MIS of a constant map and a cosine lobe has a small variance)."""
     mesh, surf = sphere
@@ -71,7 +73,7 @@ def test_white_furnace_every_method(sphere):
     # View along the normal, plus a sample seen at grazing (cos_o = 1e-7): no NaN.
     wo = n.copy()
     wo[0] = np.cross(n[0], np.asarray(surf.tangent)[0]) * np.sqrt(1 - 1e-14) + n[0] * 1e-7
-    tol = {"rig": 1e-2, "dense": 3e-3, "fast": 3e-3}
+    tol = {"rig": 1e-2, "dense": 3e-3, "fast": 3e-3, "lights": 6e-3}
     for method in render.METHODS:
         kw = {"rig": stage.geodesic_dome(2)} if method == "rig" else {}
         if method == "reference":

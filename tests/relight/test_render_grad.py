@@ -1,8 +1,9 @@
 """Gradients of model-based relighting (``relight.render.render_samples``)
 through the shared OLAT forward model, in float64.
 
-Methods "rig" (a near-field dome, light weights from the environment) and
-"dense" (a lat-long grid of distant lights): jax.grad of a weighted sum of
+Methods "rig" (a near-field dome, light weights from the environment),
+"dense" (a lat-long grid of distant lights) and "lights" (a median-cut light
+set): jax.grad of a weighted sum of
 the relit radiance w.r.t. each material map (rho_d, rho_s, alpha, normal),
 contracted with a random direction, and jax.jvp along it, agree with a
 central finite difference. Shadows are ray-cast once (not differentiated).
@@ -29,6 +30,7 @@ SCALE = dict(rho_d=1.0, rho_s=0.05, alpha=0.2, normal=1.0)
 METHODS = {
     "rig": lambda: dict(rig=stage.geodesic_dome(1, radius_mm=400.0, near_field=True)),  # 42 lights at 8 radii
     "dense": lambda: dict(resolution=8),  # 128 distant lights
+    "lights": lambda: dict(lights=48),  # median cut of the 8 x 16 map: 48 regions
 }
 
 

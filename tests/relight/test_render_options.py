@@ -1,4 +1,4 @@
-"""Typed render methods (relight.render.Rig, Dense, Fast, Reference): the same
+"""Typed render methods (relight.render.Rig, Dense, Lights, Fast, Reference): the same
 renders as the string spellings, their defaults are DEFAULTS, and bad
 settings are refused when the object is built."""
 
@@ -30,6 +30,7 @@ def test_objects_render_what_the_strings_render(small):
     pairs = [
         (render.Dense(rows=8), dict(method="dense", resolution=8)),
         (render.Rig(rig=dome, supersample=2), dict(method="rig", rig=dome, supersample=2)),
+        (render.Lights(lights=32), dict(method="lights", lights=32)),
     ]
     for obj, kw in pairs:
         a = render.render_samples(maps, surf, env, wo, method=obj, mesh=mesh, key=jax.random.PRNGKey(4))
@@ -48,10 +49,12 @@ def test_objects_render_what_the_strings_render(small):
 
 def test_defaults_are_the_objects_defaults():
     assert render.DEFAULTS == {"rig": render.Rig().settings(), "dense": render.Dense().settings(),
-                               "fast": render.Fast().settings(), "reference": render.Reference().settings()}
+                               "fast": render.Fast().settings(), "reference": render.Reference().settings(),
+                               "lights": render.Lights().settings()}
     assert render.DEFAULTS["dense"] == {"resolution": 32}
     assert render.Reference().samples == 256 and render.Rig().weights == "voronoi"
-    assert tuple(render.METHODS) == ("rig", "dense", "fast", "reference")
+    assert tuple(render.METHODS) == ("rig", "dense", "fast", "reference", "lights")
+    assert render.DEFAULTS["lights"] == {"lights": 256}
 
 
 def test_bad_method_objects(small):
