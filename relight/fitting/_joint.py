@@ -125,11 +125,10 @@ def fit_with_subsurface(capture: stage.Capture, surface: stage.Surface, *, model
         rest = stage.Capture(capture.radiance - jnp.asarray(pred, capture.radiance.dtype), capture.mask, capture.rig,
                              capture.cameras, getattr(capture, "sensor", None))
         lobe = fit(rest, frame, model=model, normals=False, progress=progress, **fo)
-        # The local Lambert albedo where no subsurface was chosen; the profile albedo start elsewhere.
-        none = np.asarray(out.mfp_rung if out.mfp_rung is not None else out.model != SUBSURFACE) == 0
-        rho_d = np.where(none[:, None], np.asarray(lobe.rho_d), np.asarray(first.rho_d))
+        # The lobe's own diffuse albedo is what the predicted subsurface left over, not an albedo: every
+        # sample starts from the first fit's (fit_subsurface solves the local rung's albedo again).
         result = np.where(np.asarray(first.result) != 0, np.asarray(first.result), np.asarray(lobe.result))
-        merged = dataclasses.replace(first, rho_d=jnp.asarray(rho_d, first.rho_d.dtype), rho_s=lobe.rho_s,
+        merged = dataclasses.replace(first, rho_s=lobe.rho_s,
                                      alpha=lobe.alpha, normal=lobe.normal, tangent=lobe.tangent, model=lobe.model,
                                      result=jnp.asarray(result, jnp.int32), steps=first.steps + lobe.steps)
         out = fit_subsurface(capture, surface, merged, per=per, regions=regions, eta=eta, mfp_range=mfp_range,

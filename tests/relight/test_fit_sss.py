@@ -89,7 +89,9 @@ def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
     """per="auto" on Lambertian data (no subsurface): the local Lambert rung
     (mfp_rung 0, the BRDF's model and albedo kept, mfp 0) for > 90% of the
     samples (measured: all 490): subsurface's Fresnel in/out factors do not
-    fit a Lambertian surface better than its own term."""
+    fit a Lambertian surface better than its own term. The local rung's albedo
+    is solved again beside the fitted lobe (on every light of each seeing
+    view): within 3% of the BRDF fit's own (measured 1.6%)."""
     surface = sphere[0]
     cap, _ = _capture(sphere, None, seed=3)
     f = relight.fit(cap, surface)
@@ -98,7 +100,7 @@ def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
     assert np.mean(rung == 0) > 0.9
     lam = rung == 0
     assert np.all(np.asarray(g.model)[lam] == np.asarray(f.model)[lam])
-    np.testing.assert_array_equal(np.asarray(g.rho_d)[lam], np.asarray(f.rho_d)[lam])
+    np.testing.assert_allclose(np.asarray(g.rho_d)[lam], np.asarray(f.rho_d)[lam], rtol=0.03)
     assert np.all(np.asarray(g.mfp)[lam] == 0) and np.all(np.isinf(np.asarray(g.mfp_sigma)[lam]))
 
 
