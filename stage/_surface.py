@@ -63,6 +63,56 @@ class Surface(eqx.Module):
                        barycentric=None if self.barycentric is None else take(self.barycentric))
 
 
+# Candidate texels (the texels of the triangles' UV bounding boxes) generated and
+# tested per batch: ~25 float64 / int64 arrays over each, ~200 B a candidate, so
+# ~200 MiB a batch at 2^20 at most, however large the grid.
+_CANDIDATE_BATCH = 1 << 20
+# Samples interpolated per batch: the float64 temporaries of the interpolation
+# and the frame (~300 B a sample) for 2^18 samples at a time, ~75 MiB.
+_SAMPLE_BATCH = 1 << 18
+
+
+def _texel_hits(tc, F, h: int, w: int, batch: int):
+    """The (face, texel index, l1, l2) of every texel centre inside a UV
+    triangle, in face order then row-major within each face's bounding box
+    (the order the first-triangle-wins rule reads). The bounding-box candidates
+    are generated and tested ``batch`` at a time (a face's box may be split
+    between batches), so the temporaries are one batch's; only the hits are
+    kept (int64, int64, float64, float64)."""
+    t0, t1, t2 = tc[F[:, 0]], tc[F[:, 1]], tc[F[:, 2]]
+    lo = np.floor(np.minimum(np.minimum(t0, t1), t2) - 0.5).astype(np.int64) + 1
+    hi = np.floor(np.maximum(np.maximum(t0, t1), t2) - 0.5).astype(np.int64)
+    lo = np.clip(lo, 0, [w - 1, h - 1])
+    hi = np.clip(hi, -1, [w - 1, h - 1])
+    nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
+    ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
+    counts = nx * ny
+    end = np.cumsum(counts)  # candidate j belongs to the face with end[f - 1] <= j < end[f]
+    total = int(end[-1]) if len(end) else 0
+    parts = []
+    for s in range(0, total, batch):
+        j = np.arange(s, min(s + batch, total), dtype=np.int64)
+        tri = np.searchsorted(end, j, side="right")
+        k = j - (end[tri] - counts[tri])
+        px = lo[tri, 0] + k % nx[tri]
+        py = lo[tri, 1] + k // nx[tri]
+        c = np.stack([px + 0.5, py + 0.5], axis=1)
+        a = t0[tri]
+        v0, v1, v2 = t1[tri] - a, t2[tri] - a, c - a
+        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+        ok = np.abs(den) > 1e-14
+        den = np.where(ok, den, 1.0)
+        l1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+        l2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+        l0 = 1 - l1 - l2
+        eps = -1e-9
+        inside = ok & (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
+        parts.append((tri[inside], (py * w + px)[inside], l1[inside], l2[inside]))
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    return tuple(np.concatenate(x) for x in zip(*parts, strict=True))
+
+
 def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surface:
     """Rasterise the UV atlas: one sample per texel whose centre falls inside a
     UV triangle (first triangle wins where charts overlap).
@@ -70,6 +120,12 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
     Position and normal are interpolated barycentrically; the tangent is dP/du
     of the triangle (Gram-Schmidt against the normal); the area is the
     triangle's world-to-UV area ratio times the texel's UV area.
+
+    Memory: the triangles' bounding-box texels are tested ``_CANDIDATE_BATCH``
+    (2^20) at a time and the samples interpolated ``_SAMPLE_BATCH`` (2^18) at a
+    time, so beyond the result (~70 B a sample) and ~40 B per texel hit
+    (kept to resolve overlaps) the temporaries are bounded by the batch sizes,
+    not by the grid; the result does not depend on them.
     """
     if mesh.uv is None:
         raise ValueError(f"mesh '{mesh.name}' has no UV coordinates; texel-space sampling needs them")
@@ -79,42 +135,12 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
     V, F, UV = mesh.vertices, mesh.faces, mesh.uv
     # Texel coordinates (x along u, y along 1 - v so that row 0 is the top of the texture).
     tc = np.stack([UV[:, 0] * w, (1.0 - UV[:, 1]) * h], axis=1)
-    t0, t1, t2 = tc[F[:, 0]], tc[F[:, 1]], tc[F[:, 2]]
-    lo = np.floor(np.minimum(np.minimum(t0, t1), t2) - 0.5).astype(np.int64) + 1
-    hi = np.floor(np.maximum(np.maximum(t0, t1), t2) - 0.5).astype(np.int64)
-    lo = np.clip(lo, 0, [w - 1, h - 1])
-    hi = np.clip(hi, -1, [w - 1, h - 1])
-    nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
-    ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
-    counts = nx * ny
-    tri = np.repeat(np.arange(len(F)), counts)
-    start = np.repeat(np.cumsum(counts) - counts, counts)
-    k = np.arange(counts.sum()) - start
-    px = lo[tri, 0] + k % nx[tri]
-    py = lo[tri, 1] + k // nx[tri]
-    c = np.stack([px + 0.5, py + 0.5], axis=1)
-    a, b_, c_ = t0[tri], t1[tri], t2[tri]
-    v0, v1, v2 = b_ - a, c_ - a, c - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    ok = np.abs(den) > 1e-14
-    den = np.where(ok, den, 1.0)
-    l1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-    l2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    l0 = 1 - l1 - l2
-    eps = -1e-9
-    inside = ok & (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
-    tri, px, py, l0, l1, l2 = tri[inside], px[inside], py[inside], l0[inside], l1[inside], l2[inside]
-    idx = py * w + px
+    tri, idx, l1, l2 = _texel_hits(tc, F, h, w, _CANDIDATE_BATCH)
     idx_unique, first = np.unique(idx, return_index=True)
-    tri, l0, l1, l2 = tri[first], l0[first], l1[first], l2[first]
+    del idx
+    tri, l1, l2 = tri[first], l1[first], l2[first]
     if len(idx_unique) == 0:
         raise ValueError(f"mesh '{mesh.name}': no texel centre falls inside any UV triangle at {h}x{w}")
-    f = F[tri]
-    lam = np.stack([l0, l1, l2], axis=1)[:, :, None]
-    pos = np.sum(V[f] * lam, axis=1)
-    nrm = np.sum(mesh.normals[f] * lam, axis=1)
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-    uv = np.sum(UV[f] * lam, axis=1)
     # Per-triangle dP/du and the world/UV area ratio.
     e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
     d1, d2 = UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]
@@ -124,10 +150,24 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
     world_area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
     uv_area = 0.5 * np.abs(det)
     ratio = np.where(uv_area > 1e-20, world_area / np.where(uv_area > 1e-20, uv_area, 1.0), 0.0)
-    t, b = frame_from_normal_tangent(nrm, dpdu[tri])
-    area = ratio[tri] / (h * w)
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return Surface(position=f32(pos), normal=f32(nrm), tangent=f32(t), bitangent=f32(b), uv=f32(uv),
-                   area=f32(area), texel_index=jnp.asarray(idx_unique, jnp.int32),
-                   face=jnp.asarray(tri, jnp.int32), resolution=(int(h), int(w)),
-                   barycentric=f32(lam[:, :, 0]))
+    P = len(idx_unique)
+    out = {k: np.empty((P, n), np.float32) for k, n in
+           (("position", 3), ("normal", 3), ("tangent", 3), ("bitangent", 3), ("uv", 2), ("barycentric", 3))}
+    area = np.empty(P, np.float32)
+    # Row by row arithmetic, so interpolating in batches gives the same bits as all at once.
+    for s in range(0, P, _SAMPLE_BATCH):
+        r = slice(s, min(s + _SAMPLE_BATCH, P))
+        fr, b1, b2 = tri[r], l1[r], l2[r]
+        f = F[fr]
+        lam = np.stack([1 - b1 - b2, b1, b2], axis=1)[:, :, None]
+        nrm = np.sum(mesh.normals[f] * lam, axis=1)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        t, b = frame_from_normal_tangent(nrm, dpdu[fr])
+        out["position"][r] = np.sum(V[f] * lam, axis=1)
+        out["normal"][r], out["tangent"][r], out["bitangent"][r] = nrm, t, b
+        out["uv"][r] = np.sum(UV[f] * lam, axis=1)
+        out["barycentric"][r] = lam[:, :, 0]
+        area[r] = ratio[fr] / (h * w)
+    return Surface(**{k: jnp.asarray(v) for k, v in out.items()}, area=jnp.asarray(area),
+                   texel_index=jnp.asarray(idx_unique, jnp.int32), face=jnp.asarray(tri, jnp.int32),
+                   resolution=(int(h), int(w)))

@@ -34,7 +34,8 @@ tells fitted texels from padding.
 
 ``texture_set(maps, surface)`` builds the set in memory (a :class:`TextureSet`,
 what reading the files back gives); ``write_texture_set`` writes one and
-``write_maps`` does both. Every file is written atomically
+``write_maps`` does both, building and writing one file's maps at a time (the
+same bytes, without the whole set in memory). Every file is written atomically
 (``relight.io.write_exr``); ``maps.json`` is written last. Reading validates everything and raises ``FileNotFoundError``
 or ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
 """
@@ -150,39 +151,109 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return np.where(n > 1e-12, v / np.where(n > 1e-12, n, 1.0), np.array([0.0, 0.0, 1.0], v.dtype))
 
 
-def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
-                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> TextureSet:
-    """The texture set of ``maps`` (over ``surface``'s samples), in memory: what
-    :func:`write_maps` writes and :func:`read_maps` reads back (to the float32
-    rounding of the EXR files), without touching the disk.
+# Texture rows renormalised per band (_Maps._renorm): 64 rows of 4096 texels' float64 temporaries are ~20 MiB.
+_RENORM_ROWS = 64
 
-    Args: as :func:`write_maps`. ``info`` holds what maps.json will hold.
-    """
-    P = surface.num_samples
-    if maps.num_samples != P:
-        raise ValueError(f"maps hold {maps.num_samples} samples but the surface has {P}")
-    h, w = surface.resolution
-    idx = np.asarray(surface.texel_index)
-    if len(np.unique(idx)) != len(idx):
-        raise ValueError("surface has several samples on one texel; a texture set needs one per texel")
-    valid = np.zeros((h, w), bool)
-    valid.reshape(-1)[idx] = True
 
-    def tex(x, fill=0.0):
+class _Maps:
+    """The fields of a :class:`TextureSet` of ``maps`` over ``surface``, each
+    built when asked for (``get``) and not kept, so a caller that writes one
+    file at a time holds one map's textures and their sources, not all of them."""
+
+    def __init__(self, maps: MaterialMaps, surface, gutter: int):
+        P = surface.num_samples
+        if maps.num_samples != P:
+            raise ValueError(f"maps hold {maps.num_samples} samples but the surface has {P}")
+        h, w = surface.resolution
+        idx = np.asarray(surface.texel_index)
+        if len(np.unique(idx)) != len(idx):
+            raise ValueError("surface has several samples on one texel; a texture set needs one per texel")
+        self.maps, self.surface, self.gutter, self.P = maps, surface, gutter, P
+        self.valid = np.zeros((h, w), bool)
+        self.valid.reshape(-1)[idx] = True
+
+    def _tex(self, x, fill=0.0):
         x = np.asarray(x, np.float32)
-        return surface.to_texture(x.reshape(P, -1), fill=fill)
+        return self.surface.to_texture(x.reshape(self.P, -1), fill=fill)
 
-    n_world = _unit(np.asarray(maps.normal, np.float64))
-    t_world = np.asarray(maps.tangent, np.float64)
-    t_world = _unit(t_world - np.sum(t_world * n_world, -1, keepdims=True) * n_world)
-    # Tangent-space normal in the surface's own frame (t, b, n).
-    sn, st, sb = (np.asarray(a, np.float64) for a in (surface.normal, surface.tangent, surface.bitangent))
-    n_ts = np.stack([np.sum(n_world * st, -1), np.sum(n_world * sb, -1), np.sum(n_world * sn, -1)], -1)
-    alpha = np.asarray(maps.alpha, np.float64)
+    def _pad(self, t):
+        return dilate(t, self.valid, self.gutter)
 
-    pad = lambda t: dilate(t, valid, gutter)  # noqa: E731
-    renorm = lambda t: _unit(pad(t).astype(np.float64)).astype(np.float32)  # noqa: E731
-    info = {
+    def _renorm(self, t):
+        """Padded and renormalised (in float64, rounded to float32), a band of
+        rows at a time: per texel the same arithmetic, a band's temporaries."""
+        out = self._pad(t)
+        for r in range(0, out.shape[0], _RENORM_ROWS):
+            out[r:r + _RENORM_ROWS] = _unit(out[r:r + _RENORM_ROWS].astype(np.float64))
+        return out
+
+    def _frames(self):
+        """World normal and tangent (float64, unit, t orthogonal to n) of the maps."""
+        n_world = _unit(np.asarray(self.maps.normal, np.float64))
+        t_world = np.asarray(self.maps.tangent, np.float64)
+        return n_world, _unit(t_world - np.sum(t_world * n_world, -1, keepdims=True) * n_world)
+
+    def get(self, field: str) -> np.ndarray:
+        """The TextureSet field ``field`` (everything but ``info``)."""
+        m = self.maps
+        if field == "albedo":
+            return self._pad(self._tex(m.rho_d))
+        if field == "specular":
+            return self._pad(self._tex(m.rho_s))
+        if field == "alpha":
+            return self._pad(self._tex(np.asarray(m.alpha, np.float64), fill=1.0))
+        if field == "normal":
+            return self._renorm(self._tex(self._frames()[0]))
+        if field == "tangent":
+            return self._renorm(self._tex(self._frames()[1]))
+        if field == "normal_ts":
+            # Tangent-space normal in the surface's own frame (t, b, n).
+            n_world = self._frames()[0]
+            sn, st, sb = (np.asarray(a, np.float64) for a in
+                          (self.surface.normal, self.surface.tangent, self.surface.bitangent))
+            n_ts = np.stack([np.sum(n_world * st, -1), np.sum(n_world * sb, -1), np.sum(n_world * sn, -1)], -1)
+            del n_world
+            return self._renorm(self._tex(n_ts))
+        if field == "mfp":
+            return self._pad(self._tex(m.mfp))
+        if field == "model":
+            return _dilate_nearest(self.surface.to_texture(np.asarray(m.model, np.int32)), self.valid,
+                                   self.gutter).astype(np.int32)
+        if field == "coverage":
+            return self.valid
+        raise KeyError(field)
+
+
+def _file_channels(key: str, get) -> dict[str, np.ndarray]:
+    """The channels of file ``key`` of FILES, from the TextureSet fields ``get(field)`` gives."""
+    if key == "albedo":
+        a = get("albedo")
+        return {c: a[..., i] for i, c in enumerate("RGB")}
+    if key == "specular":
+        return {"Y": get("specular")[..., 0]}
+    if key == "roughness":
+        a = get("alpha")
+        return {"alpha_x": a[..., 0], "alpha_y": a[..., 1], "Y": np.sqrt(a[..., 0] * a[..., 1])}
+    if key == "normal":
+        enc = 0.5 * get("normal_ts") + 0.5
+        n, t = get("normal"), get("tangent")
+        return {**{c: enc[..., i] for i, c in enumerate("RGB")},
+                **{f"world.{c}": n[..., i] for i, c in enumerate("RGB")},
+                **{f"tangent.{c}": t[..., i] for i, c in enumerate("RGB")}}
+    if key == "mean_free_path":
+        m = get("mfp")
+        return {c: m[..., i] for i, c in enumerate("RGB")}
+    if key == "model":
+        return {"Y": get("model").astype(np.float32)}
+    if key == "coverage":
+        return {"Y": get("coverage").astype(np.float32)}
+    raise KeyError(key)
+
+
+def _info(surface, P: int, gutter: int, metadata, surface_info) -> dict:
+    """maps.json of a set over ``surface`` (P samples)."""
+    h, w = surface.resolution
+    return {
         "format": FORMAT,
         "version": VERSION,
         "resolution": [int(h), int(w)],
@@ -197,50 +268,45 @@ def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
         "metadata": jsonable(dict(metadata or {})),
         "writer": f"relight {_version()}",
     }
-    return TextureSet(
-        albedo=pad(tex(maps.rho_d)),
-        specular=pad(tex(maps.rho_s)),
-        alpha=pad(tex(alpha, fill=1.0)),
-        normal=renorm(tex(n_world)),
-        tangent=renorm(tex(t_world)),
-        normal_ts=renorm(tex(n_ts)),
-        mfp=pad(tex(maps.mfp)),
-        model=_dilate_nearest(surface.to_texture(np.asarray(maps.model, np.int32)), valid, gutter).astype(np.int32),
-        coverage=valid,
-        info=info,
-    )
+
+
+def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
+                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> TextureSet:
+    """The texture set of ``maps`` (over ``surface``'s samples), in memory: what
+    :func:`write_maps` writes and :func:`read_maps` reads back (to the float32
+    rounding of the EXR files), without touching the disk.
+
+    Args: as :func:`write_maps`. ``info`` holds what maps.json will hold.
+    """
+    src = _Maps(maps, surface, gutter)
+    fields = {f.name: src.get(f.name) for f in dataclasses.fields(TextureSet) if f.name != "info"}
+    return TextureSet(**fields, info=_info(surface, src.P, gutter, metadata, surface_info))
+
+
+def _write_files(folder: Path, get, info: dict) -> Path:
+    """Each file of FILES from ``get(field)`` (built per file and dropped before
+    the next), each atomically, then maps.json ``info`` last."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for key, (name, _) in FILES.items():
+        write_exr_channels(folder / name, _file_channels(key, get), header={"relight.map": key})
+    write_json(folder / "maps.json", info)
+    return folder
 
 
 def write_texture_set(folder: str | os.PathLike, textures: TextureSet) -> Path:
     """Write an in-memory :class:`TextureSet` (from :func:`texture_set`) to
     ``folder`` in the layout of the module docstring: each file atomically,
     maps.json (``textures.info``) last. Returns the folder."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    t = textures
-    iso = np.sqrt(t.alpha[..., 0] * t.alpha[..., 1])
-    enc = 0.5 * t.normal_ts + 0.5
-    images = {
-        "albedo": {c: t.albedo[..., i] for i, c in enumerate("RGB")},
-        "specular": {"Y": t.specular[..., 0]},
-        "roughness": {"alpha_x": t.alpha[..., 0], "alpha_y": t.alpha[..., 1], "Y": iso},
-        "normal": {**{c: enc[..., i] for i, c in enumerate("RGB")},
-                   **{f"world.{c}": t.normal[..., i] for i, c in enumerate("RGB")},
-                   **{f"tangent.{c}": t.tangent[..., i] for i, c in enumerate("RGB")}},
-        "mean_free_path": {c: t.mfp[..., i] for i, c in enumerate("RGB")},
-        "model": {"Y": t.model.astype(np.float32)},
-        "coverage": {"Y": t.coverage.astype(np.float32)},
-    }
-    for key, (name, _) in FILES.items():
-        write_exr_channels(folder / name, images[key], header={"relight.map": key})
-    write_json(folder / "maps.json", t.info)
-    return folder
+    return _write_files(Path(folder), lambda field: getattr(textures, field), textures.info)
 
 
 def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> Path:
-    """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``
-    (``write_texture_set(folder, texture_set(maps, surface, ...))``).
+    """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``:
+    the files of ``write_texture_set(folder, texture_set(maps, surface, ...))``,
+    bit for bit, but each map is built, written and dropped before the next, so
+    peak memory is one file's textures (the normal file's three, ~100 B a grid
+    texel with their float64 sources) rather than the whole set's.
 
     Args:
         folder: created if missing; existing files of the set are replaced
@@ -255,10 +321,10 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
     Returns the folder.
     """
     try:
-        textures = texture_set(maps, surface, metadata=metadata, surface_info=surface_info, gutter=gutter)
+        src = _Maps(maps, surface, gutter)
     except ValueError as err:
         raise ValueError(f"{folder}: {err}") from None
-    return write_texture_set(folder, textures)
+    return _write_files(Path(folder), src.get, _info(surface, src.P, gutter, metadata, surface_info))
 
 
 def _version() -> str:
