@@ -67,3 +67,19 @@ def test_bundled_head(shared_data):
     assert 0.8 * 128 * 128 < s.num_samples < 128 * 128
     # The face looks toward +z (the main camera): the nose tip is the most forward point.
     assert np.asarray(s.normal)[np.argmax(np.asarray(s.position)[:, 2]), 2] > 0.5
+
+
+def test_batched_texel_samples_equal_one_batch(monkeypatch):
+    """Memory is bounded by the candidate and sample batches, not the grid:
+    tiny batches (a batch boundary inside triangles and between samples) give
+    the same surface, field by field, bit for bit."""
+    from stage import _surface
+
+    mesh = uv_sphere(radius=10.0, n_lat=12, n_lon=24)
+    whole = stage.texel_samples(mesh, 48)
+    monkeypatch.setattr(_surface, "_CANDIDATE_BATCH", 97)
+    monkeypatch.setattr(_surface, "_SAMPLE_BATCH", 61)
+    small = stage.texel_samples(mesh, 48)
+    assert small.num_samples == whole.num_samples > 500
+    for name in ("position", "normal", "tangent", "bitangent", "uv", "area", "texel_index", "face", "barycentric"):
+        np.testing.assert_array_equal(np.asarray(getattr(small, name)), np.asarray(getattr(whole, name)), err_msg=name)
