@@ -49,7 +49,6 @@ from ..image._preview import dilate, sample_texture, texture_view
 from ..io import (
     CaptureStoreWriter,
     default_chunks,
-    is_capture_store,
     read_exr,
     spec_mesh,
     texel_surface,
@@ -58,6 +57,7 @@ from ..io import (
     write_maps,
     write_photo_capture,
 )
+from ..io._store import MARKER as _STORE_MARKER  # the manifest: only a finished store is replaced
 from ..materials._maps import GGX, SUBSURFACE, material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
@@ -282,7 +282,7 @@ def _check_form(args, out: Path) -> bool:
     if args.block is not None:
         at_least("--block", args.block, 64)
     if store:
-        if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or is_capture_store(out))):
+        if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / _STORE_MARKER).is_file())):
             raise CLIError(f"--out {out}: exists and is not a capture store (or an empty folder); refusing to "
                            "replace it")
     elif out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):

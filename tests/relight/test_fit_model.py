@@ -142,7 +142,7 @@ def _fitted(lay, surface, seed):
              steps=np.zeros(P_ONE, np.int32), sigma=np.zeros((P_ONE, k)))
     model = np.full(P_ONE, lay.model, np.int32)
     out = _driver._assemble({lay.model: (np.arange(P_ONE), r)}, model, P_ONE, lay.normals, lay.alpha_floor,
-                            np.dtype(np.float64), surface)
+                            np.dtype(np.float64), surface, 64)
     j = jnp.asarray
     f = _driver.Fit(rho_d=j(out["rho_d"]), rho_s=j(out["rho_s"]), alpha=j(out["alpha"]), normal=j(out["normal"]),
                     tangent=j(out["tangent"]), model=j(model), residual=j(out["residual"]),
