@@ -15,8 +15,9 @@ noise is estimated from a second independent run and reported.
 Times are wall-clock milliseconds of one ``render_samples`` call with the JIT
 compiled (a warm-up call per map resolution is not timed). "rig" and "dense"
 are given their visibility masks (computed once per geometry and reused for
-every map; that one-off cost is listed separately); "fast" casts its
-ambient-occlusion rays and "reference" its shadow rays inside the timed call.
+every map; that one-off cost is listed separately); "lights" casts the
+shadow rays of its median-cut lights, "fast" its ambient-occlusion rays and
+"reference" its shadow rays inside the timed call.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ def settings():
     rows = [("rig", "Light Stage X (346, near field)", {"rig": stage.light_stage_x()})]
     rows += [("rig", f"geodesic dome {r.num_lights}", {"rig": r}) for r in dome.values()]
     rows += [("dense", f"{r} x {2 * r}", {"resolution": r}) for r in (16, 32, 64)]
+    rows += [("lights", f"median cut {k}", {"lights": k}) for k in (64, 256, 1024)]
     rows += [("fast", "SH2 + split-sum + AO 64", {})]
     rows += [("reference", f"{n} spp", {"samples": n}) for n in (16, 64, 256)]
     return rows
@@ -171,7 +173,8 @@ def main():
     ncol = 4
     nrow = -(-len(names) // ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow), squeeze=False)
-    colors = {"rig": "tab:blue", "dense": "tab:orange", "fast": "tab:green", "reference": "tab:red"}
+    colors = {"rig": "tab:blue", "dense": "tab:orange", "lights": "tab:purple", "fast": "tab:green",
+              "reference": "tab:red"}
     markers = ["o", "s", "^", "D"]
     for ax, n in zip(axes.ravel(), names, strict=False):
         count = {}
