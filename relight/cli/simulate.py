@@ -30,7 +30,6 @@ is written in."""
 from __future__ import annotations
 
 import math
-import os
 import secrets
 import shutil
 import time
@@ -58,6 +57,7 @@ from ..io import (
     write_photo_capture,
 )
 from ..io._store import MARKER as _STORE_MARKER  # the manifest: only a finished store is replaced
+from ..io._store import swap_folder
 from ..materials._maps import GGX, SUBSURFACE, material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
@@ -486,7 +486,7 @@ def _run_store(args, out: Path, sensor, sss_source) -> int:
                        samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
                        block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
                        timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
-        _replace(tmp, out)
+        swap_folder(tmp, out)  # out: a finished store or an empty folder (checked above)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if not args.quiet:
@@ -597,23 +597,6 @@ def _host_subset(host: dict, resolution, index) -> stage.Surface:
     indexing and even ``jnp.asarray`` compile a program per new shape, ``jax.device_put`` does not."""
     return stage.Surface(**{k: None if v is None else jax.device_put(v[index]) for k, v in host.items()},
                          resolution=resolution)
-
-
-def _replace(tmp: Path, out: Path) -> None:
-    """Move the finished store ``tmp`` to ``out``: an old store (or empty folder)
-    there is moved aside first and deleted after, so ``out`` holds the old store,
-    then nothing for a moment, then the new one (as relight.io's store writer does)."""
-    if not out.exists():
-        os.replace(tmp, out)
-        return
-    old = out.with_name(f".{out.name}.{secrets.token_hex(6)}.old")
-    os.replace(out, old)
-    try:
-        os.replace(tmp, out)
-    except BaseException:
-        os.replace(old, out)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def _run_image(args, out: Path, sensor) -> int:

@@ -130,21 +130,27 @@ def _check_target(path: Path) -> Path:
 
 
 def _swap_in(tmp: Path, path: Path) -> None:
-    """Rename the finished ``tmp`` to ``path``; an old store there is moved aside
-    first and deleted after, so ``path`` holds the old store, then nothing for
-    a moment (readers see no store, not a mixed one), then the new store."""
+    """Rename the finished ``tmp`` to ``path`` (which must be a store or absent): :func:`swap_folder`."""
     _check_target(path)
-    if path.exists():
-        old = path.with_name(f".{path.name}.{secrets.token_hex(6)}.old")
-        os.replace(path, old)
-        try:
-            os.replace(tmp, path)
-        except BaseException:
-            os.replace(old, path)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
+    swap_folder(tmp, path)
+
+
+def swap_folder(tmp: Path, path: Path) -> None:
+    """Rename the finished folder ``tmp`` to ``path``; an old folder there is
+    moved aside first and deleted after, so ``path`` holds the old set, then
+    nothing for a moment (readers see no set, not a mixed one), then the new
+    one. The caller decides what may be replaced."""
+    if not path.exists():
         os.replace(tmp, path)
+        return
+    old = path.with_name(f".{path.name}.{secrets.token_hex(6)}.old")
+    os.replace(path, old)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        os.replace(old, path)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def _codecs(kind: str):
