@@ -13,6 +13,7 @@ from ._driver import fit as fit
 from ._driver import rig_alpha_floor as rig_alpha_floor
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
+from ._lm import NormalLevenbergMarquardt as NormalLevenbergMarquardt
 from ._parts import PartsFingerprintError as PartsFingerprintError
 from ._parts import PartsIncompleteError as PartsIncompleteError
 from ._parts import fit_parts as fit_parts

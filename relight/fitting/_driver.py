@@ -52,14 +52,15 @@ from ..materials._maps import (
 )
 from . import _init as _fit_init
 from . import _model as _fit_model
+from ._lm import NormalLevenbergMarquardt
 from ._model import Layout
 
 # The fitter's roughness prior, separate from the model's own floor
 # (brdf.ALPHA_MIN): below this no light stage resolves a GGX lobe.
 ALPHA_FIT_MIN = 0.02
-SOLVERS = ("lm", "gn", "dogleg", "bfgs")
+SOLVERS = ("lm", "optx-lm", "gn", "dogleg", "bfgs")
 LOSSES = ("cauchy", "l2")
-# Every parameter a rung may report an uncertainty for (0 where not fitted).
+# Every parameter a rung may report an uncertainty for (0 where not fitted, inf where unknown).
 PARAM_NAMES = ("rho_d.r", "rho_d.g", "rho_d.b", "rho_s", "alpha_x", "alpha_y", "phi", "normal.x", "normal.y")
 # Fewer valid observations (lights x views) than this leave a sample underdetermined.
 _MIN_OBSERVATIONS = 8
@@ -97,7 +98,9 @@ class Fit(eqx.Module):
     was rejected and the sample kept its start), LM steps taken [P], valid
     observations [P], one-sigma uncertainties [P, 9] from J^T J (names in
     ``PARAM_NAMES``, in the parameters' units, 0 where a rung has no such
-    parameter), and the roughness
+    parameter, inf where the data leave a fitted parameter unknown: no or too
+    few observations, a direction nothing constrains; ``unidentified``
+    flags those), and the roughness
     floor the rig resolves (``alpha_floor``: a fitted alpha at the floor means
     "narrower than the rig can tell", flagged by ``unresolved``), the mean
     free path [P, 3] (mm; after :func:`relight.fit_subsurface`, else None) and
@@ -153,6 +156,11 @@ class Fit(eqx.Module):
         return jnp.isfinite(self.mfp_sigma) & (self.mfp_sigma < self.IDENTIFIED_SIGMA)
 
     @property
+    def unidentified(self):
+        """[P, 9] bool (``PARAM_NAMES``): fitted parameters the data leave unknown (uncertainty inf)."""
+        return ~jnp.isfinite(self.uncertainty)
+
+    @property
     def unresolved(self):
         """Samples whose lobe is at the rig's roughness floor (sharper than it resolves)."""
         return (self.model >= BLINN_PHONG) & (self.alpha[:, 0] < 1.25 * self.alpha_floor)
@@ -178,6 +186,8 @@ def _named_solver(name: str, rtol: float, atol: float):
     """The Optimistix solver a string spelling stands for."""
     chol = lx.Normal(lx.Cholesky())
     if name == "lm":
+        return NormalLevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "optx-lm":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=chol)
     if name == "gn":
         return optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=chol)
@@ -243,8 +253,15 @@ def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, cauchy):
         # Component-major [3, N] for the model (it vectorises over the lights).
         obs, sw, h, wi, wo, irr = (x.T for x in (obs, sw, h, wi, wo, irr))
         res = _fit_model.materialised_residual(obs, sw, wi, wo, irr, lay, c)
+        if isinstance(solver, NormalLevenbergMarquardt):  # it takes the structured normal equations as fn's aux
+            def normal(u, _):
+                r, J, _ = _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)
+                return r, (J.T @ J, J.T @ r)
 
-        sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
+            sol = optx.least_squares(normal, solver, u0, has_aux=True, options={"jac": "normal"},
+                                     max_steps=max_steps, throw=False)
+        else:
+            sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
         u1 = sol.value
         cost0 = jnp.sum(res(u0) ** 2)
         cost1 = jnp.sum(res(u1) ** 2)
@@ -272,7 +289,13 @@ def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, cauchy):
         cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))
         Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
         var = jnp.sum((Jp @ cov) * Jp, axis=1)
-        sigma = jnp.sqrt(jnp.clip(jnp.nan_to_num(var, nan=0.0, posinf=0.0), 0.0, 1e6))
+        # Unknown, not "perfectly known": a parameter the data do not constrain
+        # (its Jacobian column numerically null next to the others, or fewer
+        # valid observations than parameters: no noise estimate) or whose
+        # variance is not finite or beyond any meaningful range gets sigma = inf.
+        null_u = (jnp.diagonal(jtj) <= 1e-10 * (jnp.trace(jtj) / k)) | (jnp.sum(w2) <= k)
+        unknown = (jnp.abs(Jp) @ null_u.astype(u.dtype) > 0) | ~jnp.isfinite(var) | (var > 1e6) | (jnp.sum(w2) <= k)
+        sigma = jnp.where(unknown, jnp.inf, jnp.sqrt(jnp.clip(jnp.where(unknown, 0.0, var), 0.0, None)))
         return u, rms, code, sol.stats["num_steps"], sigma, hmse
 
     return jax.vmap(one)(u0, obs, w, h, wi, wo, irr)
@@ -729,10 +752,13 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
     out["alpha"][empty] = 0.3
     out["normal"][empty] = np.asarray(block_surface.normal, dt)[empty]
     out["tangent"][empty] = np.asarray(block_surface.tangent, dt)[empty]
-    out["uncertainty"][empty] = 0.0
+    # No usable data: every parameter the sample's rung has is unknown.
+    unc = out["uncertainty"]
+    unc[empty] = np.where((unc[empty] != 0) | (np.arange(9) < 3), np.inf, 0.0)
     big = np.finfo(np.float32).max
-    for k in ("rho_d", "rho_s", "alpha", "uncertainty"):
+    for k in ("rho_d", "rho_s", "alpha"):
         out[k] = np.nan_to_num(out[k], nan=0.0, posinf=0.0, neginf=0.0)
+    out["uncertainty"] = np.nan_to_num(unc, nan=np.inf, posinf=np.inf, neginf=np.inf)
     # Residuals back in the capture's radiance units.
     out["residual"] = np.nan_to_num(out["residual"] * unit.astype(dt), nan=big, posinf=big)
     out["heldout"] = np.nan_to_num(heldout * unit.astype(dt))
