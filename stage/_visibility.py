@@ -5,6 +5,11 @@ embreex where it is installed, trimesh's pure-numpy intersector otherwise);
 not differentiated. ``Occluder`` is the one ray caster: ``light_visibility``,
 ``camera_visibility`` and ``primary_hits`` use it, and so can renderers that
 need occlusion queries along arbitrary directions (``Occluder.visible``).
+
+Ray origins follow production renderers: off the triangle along its geometric
+normal by a robust, magnitude-scaled epsilon (Waechter & Binder 2019), and for
+shadow rays from the smooth surface the interpolated normals describe
+(Hanika 2021), so smooth-shaded coarse triangles have no faceted terminator.
 """
 
 from __future__ import annotations
@@ -76,37 +81,135 @@ def as_mask(mask, start: int = 0, stop: int | None = None) -> np.ndarray:
     return np.asarray(mask, dtype=bool)[..., start:stop]
 
 
-# Ray origins are pushed off the surface by this fraction of the mesh's
-# bounding-box diagonal so a ray does not hit the triangle it starts on.
-_OFFSET_FRACTION = 1e-4
+# Robust ray-origin offset (Waechter & Binder 2019, "A Fast and Robust Method
+# for Avoiding Self-Intersection", Ray Tracing Gems ch. 6): the origin moves
+# along the geometric normal by _OFFSET_ULPS float32 ulps of the largest
+# coordinate of the sample's triangle (their int_scale = 256: Embree intersects
+# in float32, so its error in the plane distance scales with the coordinates),
+# with _OFFSET_FLOOR_MM (their float_scale = 2^-16) near the origin.
+_OFFSET_ULPS = 256.0
+_OFFSET_FLOOR_MM = 2.0 ** -16
+
+
+def face_normals(mesh: Mesh, face) -> np.ndarray:
+    """float64 [P, 3]: the unit geometric (flat) normal of triangle ``face[p]``,
+    by its winding (e1 x e2)."""
+    V, F = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)[np.asarray(face)]
+    ng = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    return ng / np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+
+
+def terminator_point(mesh: Mesh, face, barycentric, position) -> np.ndarray:
+    """float64 [P, 3]: the shadow-ray origin on the smooth surface that the
+    interpolated normals describe (Hanika 2021, "Hacking the Shadow
+    Terminator", Ray Tracing Gems II ch. 4, eq. 4.2-4.3).
+
+    The point p = sum_i b_i v_i of a flat triangle is projected onto each
+    vertex's tangent plane (v_i, n_i), only where it lies below it (convex
+    parts: the flat triangle lies inside the smooth surface), and the
+    projections are blended with the same barycentrics:
+    p' = p - sum_i b_i min(0, (p - v_i) . n_i) n_i. p' = p on flat and concave
+    parts. Shading at p with a smooth normal but casting shadows from the flat
+    triangle darkens the light side of the terminator in facets (each coarse
+    triangle shadows itself where its flat plane turns away from the light);
+    from p' a ray toward a light the smooth surface sees escapes."""
+    V, N = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.normals, np.float64)
+    F = np.asarray(mesh.faces)[np.asarray(face)]
+    b = np.asarray(barycentric, np.float64)
+    p = np.asarray(position, np.float64)
+    lift = np.zeros_like(p)
+    for i in range(3):
+        n_i = N[F[:, i]]
+        h = np.minimum(np.sum((p - V[F[:, i]]) * n_i, axis=1), 0.0)
+        lift -= (b[:, i] * h)[:, None] * n_i
+    return p + lift
+
+
+def offset_origin(mesh: Mesh, face, point, normal) -> np.ndarray:
+    """float64 [P, 3]: ``point`` moved along the unit ``normal`` by the robust
+    epsilon of ``_OFFSET_ULPS`` float32 ulps of the largest coordinate of the
+    point and of triangle ``face[p]`` (Waechter & Binder 2019), at least
+    ``_OFFSET_FLOOR_MM``: enough that the float32 ray caster never finds the
+    sample's own triangle in front of a ray leaving on the normal's side, and
+    far below any feature of the mesh (~2e-3 mm at 100 mm)."""
+    V, F = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)[np.asarray(face)]
+    mag = np.maximum(np.abs(V[F]).max(axis=(1, 2)), np.abs(point).max(axis=1))
+    eps = np.maximum(_OFFSET_ULPS * float(np.finfo(np.float32).eps) * mag, _OFFSET_FLOOR_MM)
+    return np.asarray(point, np.float64) + eps[:, None] * normal
 
 
 class Occluder:
     """Occlusion queries against ``mesh`` from the samples of ``surface``.
 
-    Rays start at each sample pushed off the surface along its (geometric)
-    normal by 1e-4 of the mesh's bounding-box diagonal, so a ray does not hit
-    the triangle it starts on. A direction below the sample's tangent plane
-    (``dot(d, n) <= 0``) counts as blocked.
+    Two ray origins per sample, both moved off the triangle along its
+    GEOMETRIC normal (oriented to the shading normal's side) by a robust
+    epsilon (``offset_origin``, Waechter & Binder 2019), so a ray leaving on
+    that side never hits the triangle it starts on:
 
-    Attributes: ``origin`` [P, 3] and ``normal`` [P, 3] (float64, mm), and
-    ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through embreex
-    where installed, else trimesh's numpy one).
+    * ``origin`` (shadow rays, ``visible`` and ``light_visibility``): the
+      sample's shadow-terminator point on the smooth surface of the
+      interpolated normals (``terminator_point``, Hanika 2021), so coarse
+      triangles do not shadow themselves on the light side of the terminator
+      (shading uses the interpolated normal; the flat facet would cut its
+      cosine lobe off in straight-edged steps). Where the lift would cross
+      other geometry (a thin part: an ear rim, an eyelid) the sample keeps
+      its point on the triangle, so the lift never lets light through a
+      surface.
+    * ``surface_origin`` (camera rays, ``camera_visibility``): the point on
+      the triangle itself: a camera sees the mesh's flat triangles, as its
+      primary rays (``primary_hits``) do.
+
+    With ``terminator=False`` shadow rays leave from ``surface_origin`` too:
+    the flat facets' own shadows, as a renderer without a terminator fix
+    (Mitsuba 3, pbrt-v4) casts them, for like-for-like comparisons.
+
+    A direction below the sample's shading tangent plane (``dot(d, n) <= 0``,
+    n the interpolated normal ``surface.normal``) counts as blocked.
+    ``surface.face`` must index ``mesh.faces`` (``texel_samples`` and
+    ``image_samples`` of this mesh); a ``surface.barycentric`` of None is
+    recomputed from the positions.
+
+    Attributes (float64, mm): ``origin`` [P, 3], ``surface_origin`` [P, 3],
+    ``normal`` [P, 3] (shading, interpolated), ``geometric_normal`` [P, 3];
+    and ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through
+    embreex where installed, else trimesh's numpy one).
     """
 
-    def __init__(self, mesh: Mesh, surface: Surface | None = None):
+    def __init__(self, mesh: Mesh, surface: Surface | None = None, terminator: bool = True):
         tm = mesh.trimesh()
         if trimesh.ray.has_embree:
             self.intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
         else:  # pragma: no cover - the pure-numpy intersector is slow but correct
             self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
-        v = np.asarray(mesh.vertices, np.float64)
-        self.offset = _OFFSET_FRACTION * float(np.linalg.norm(v.max(0) - v.min(0)))
-        if surface is not None:
-            self.normal = np.asarray(surface.normal, np.float64)
-            self.origin = np.asarray(surface.position, np.float64) + self.normal * self.offset
+        if surface is None:
+            self.normal = self.origin = self.surface_origin = self.geometric_normal = np.zeros((0, 3))
+            return
+        self.normal = np.asarray(surface.normal, np.float64)
+        face = np.asarray(surface.face)
+        if face.shape != (self.normal.shape[0],) or (len(face) and (face.min() < 0 or face.max() >= len(mesh.faces))):
+            raise ValueError(f"Occluder: surface.face must index the mesh's {len(mesh.faces)} faces "
+                             "(a surface sampled from this mesh)")
+        pos = np.asarray(surface.position, np.float64)
+        if surface.barycentric is None:
+            tri = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)[face]]
+            bary = trimesh.triangles.points_to_barycentric(tri, pos) if len(face) else np.zeros((0, 3))
         else:
-            self.normal = self.origin = np.zeros((0, 3))
+            bary = np.asarray(surface.barycentric, np.float64)
+        ng = face_normals(mesh, face)
+        # The geometric normal on the shading normal's side (pbrt-v4's FaceForward of n_g to n_s).
+        ng = np.where(np.sum(ng * self.normal, axis=1, keepdims=True) < 0, -ng, ng)
+        self.geometric_normal = ng
+        self.surface_origin = offset_origin(mesh, face, pos, ng)
+        if not terminator:
+            self.origin = self.surface_origin
+            return
+        lifted = offset_origin(mesh, face, terminator_point(mesh, face, bary, pos), ng)
+        moved = np.flatnonzero(np.any(lifted != self.surface_origin, axis=1))
+        if len(moved):
+            # The lift (<= a few % of the triangle's size) must not cross another surface.
+            crossed = ~self.segments_clear(self.surface_origin[moved], lifted[moved])
+            lifted[moved[crossed]] = self.surface_origin[moved[crossed]]
+        self.origin = lifted
 
     def visible(self, idx, dirs, active=None, distance=None) -> np.ndarray:
         """bool [n, k]: sample ``idx[i]`` sees along ``dirs[i, j]``.
@@ -155,15 +258,16 @@ class Occluder:
 
 
 def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 20, progress=None,
-                     packed: bool = False):
+                     packed: bool = False, terminator: bool = True):
     """bool [P, L]: sample p sees light l (cast shadows and self-shadowing; a
     light below the sample's tangent plane counts as not visible). With
     ``packed``, a ``PackedMask`` (8 lights per byte) instead, never holding the
     bool array. Rays are cast in blocks of about ``chunk`` (peak memory ~ 100
     bytes per ray); ``progress(phase, done, total)`` (``stage.Progress``) is
     told the (sample, light) pairs done, phase "light visibility", after each
-    block. Every ray is cast by :class:`Occluder`."""
-    occ = Occluder(mesh, surface)
+    block. Every ray is cast by :class:`Occluder` (``terminator``: its
+    shadow-terminator origins, the default; False: from the flat facets)."""
+    occ = Occluder(mesh, surface, terminator)
     pos = np.asarray(rig.position, dtype=np.float64)
     P, L = occ.origin.shape[0], pos.shape[0]
     dirs = pos / np.linalg.norm(pos, axis=1, keepdims=True)
@@ -206,7 +310,7 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
         if candidates.shape != (P,) or candidates.dtype != bool:
             raise ValueError(f"camera_visibility: candidates must be bool [{P}], got {candidates.dtype} "
                              f"{candidates.shape}")
-    origins, n = occ.origin, occ.normal
+    origins, n = occ.surface_origin, occ.normal
     out = []
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
     for cam in cameras:

@@ -72,6 +72,45 @@ def _check_rig(env: EnvMap, directions, irradiance):
     return directions, irradiance
 
 
+def _present(irradiance) -> np.ndarray | None:
+    """bool [L]: the lights that can relight (positive irradiance in every
+    channel); None when ``irradiance`` is traced (under jit), where it cannot
+    be inspected. A light of zero irradiance in every channel is absent: its
+    OLAT image holds no signal, so it takes no part in the partition (its
+    weight is 0 and its directions go to the nearest present lights, so no
+    energy is lost). Raises ValueError on a negative or non-finite irradiance,
+    a light zero in some channels only, and a rig with no positive light."""
+    try:
+        e = np.asarray(irradiance, np.float64)
+    except Exception:  # a tracer: the weights guard the division instead
+        return None
+    bad = np.flatnonzero(~np.all(np.isfinite(e) & (e >= 0), axis=-1))
+    if len(bad):
+        raise ValueError(f"light irradiance must be finite and >= 0; light(s) {bad[:8].tolist()} are not")
+    zero, positive = np.all(e == 0, axis=-1), np.all(e > 0, axis=-1)
+    mixed = np.flatnonzero(~zero & ~positive)
+    if len(mixed):
+        raise ValueError(f"light irradiance must be positive in every channel or zero in all (an absent light); "
+                         f"light(s) {mixed[:8].tolist()} are zero in some channels only")
+    if not positive.any():
+        raise ValueError(f"light irradiance is zero for all {len(e)} lights: a rig with no positive light cannot "
+                         "relight")
+    return positive
+
+
+def _divide(integrals: Array, irradiance: Array) -> Array:
+    """integrals / irradiance, 0 where the irradiance is not positive (a guard
+    for traced rigs, whose absent lights ``_present`` cannot see)."""
+    e = irradiance.astype(integrals.dtype)
+    ok = e > 0
+    return jnp.where(ok, integrals / jnp.where(ok, e, 1.0), 0.0)
+
+
+def _scatter(part: Array, index: np.ndarray, n_lights: int) -> Array:
+    """[L, C] with rows ``index`` from ``part`` and 0 elsewhere."""
+    return jnp.zeros((n_lights,) + part.shape[1:], part.dtype).at[index].set(part)
+
+
 def _supersampled(env: EnvMap, supersample: int, dt):
     """Sub-pixel directions [N, 3], their exact solid angles [N] and radiance [N, C]."""
     h, w, c = env.radiance.shape
@@ -152,10 +191,20 @@ def light_weights(
     Returns:
         ``w [L, C]`` (dimensionless) such that ``relit = sum_l w_l * OLAT_l`` and
         ``sum_l w_l * irradiance_l`` equals the map's integral over the sphere.
+
+    A light whose irradiance is 0 in every channel is absent (its OLAT image is
+    black): its weight is 0 and the cells are those of the present lights, so
+    the energy identity still holds. Raises ValueError when no light is
+    positive (a rig that cannot relight), or on a negative or non-finite
+    irradiance, or one zero in some channels only. Never NaN or Inf.
     """
     directions, irradiance = _check_rig(env, directions, irradiance)
-    integrals = voronoi_cell_integrals(env, directions, supersample)
-    return integrals / irradiance.astype(integrals.dtype)
+    present = _present(irradiance)
+    if present is None or present.all():
+        return _divide(voronoi_cell_integrals(env, directions, supersample), irradiance)
+    keep = np.flatnonzero(present)
+    part = voronoi_cell_integrals(env, directions[keep], supersample)
+    return _scatter(_divide(part, irradiance[keep]), keep, directions.shape[0])
 
 
 def rig_triangulation(directions: Float[ArrayLike, "L 3"]) -> Int[np.ndarray, "F 3"]:
@@ -261,10 +310,25 @@ def light_weights_barycentric(
     continuous in the environment, which removes the shadow "popping" of a
     small bright source when the map is rotated. ``faces`` defaults to
     :func:`rig_triangulation` (requires concrete directions).
+
+    Absent lights (irradiance 0 in every channel) get weight 0 and the
+    triangulation is that of the present lights (given ``faces`` must then
+    use present lights only); the same errors as :func:`light_weights`.
     """
     directions, irradiance = _check_rig(env, directions, irradiance)
-    integrals = barycentric_cell_integrals(env, directions, faces, supersample)
-    return integrals / irradiance.astype(integrals.dtype)
+    present = _present(irradiance)
+    if present is None or present.all():
+        return _divide(barycentric_cell_integrals(env, directions, faces, supersample), irradiance)
+    keep = np.flatnonzero(present)
+    if faces is not None:
+        faces = np.asarray(faces)
+        absent = np.setdiff1d(np.unique(faces), keep)
+        if len(absent):
+            raise ValueError(f"faces use light(s) {absent[:8].tolist()} of zero irradiance (absent lights): "
+                             "triangulate the present lights only")
+        faces = np.searchsorted(keep, faces)  # indices among the present lights
+    part = barycentric_cell_integrals(env, directions[keep], faces, supersample)
+    return _scatter(_divide(part, irradiance[keep]), keep, directions.shape[0])
 
 
 def rotation_sweep_weights(
@@ -290,7 +354,10 @@ def rotation_sweep_weights(
     if rotations.ndim != 3 or rotations.shape[1:] != (3, 3):
         raise ValueError(f"rotations must be [N, 3, 3], got shape {rotations.shape}")
     if method == "barycentric" and faces is None:
-        faces = rig_triangulation(directions)  # rotation does not change the triangulation
+        # Rotation does not change the triangulation: of the present lights only (light indices of the rig).
+        present = _present(irradiance)
+        keep = np.arange(directions.shape[0]) if present is None else np.flatnonzero(present)
+        faces = keep[rig_triangulation(np.asarray(directions)[keep])]
 
     def one(R):
         rotated = directions @ R.astype(directions.dtype)  # rows: (R^T d_l)^T

@@ -2,11 +2,13 @@
 ladder BRDF and :class:`MaterialMaps`, the one type that fitting produces and
 rendering, the texture-set IO and the CLI consume."""
 
+from ._maps import ALPHA_MAX as ALPHA_MAX
 from ._maps import BLINN_PHONG as BLINN_PHONG
 from ._maps import GGX as GGX
 from ._maps import GGX_ANISO as GGX_ANISO
 from ._maps import LAMBERT as LAMBERT
 from ._maps import MODELS as MODELS
+from ._maps import RANGE_TOL as RANGE_TOL
 from ._maps import SUBSURFACE as SUBSURFACE
 from ._maps import LadderBRDF as LadderBRDF
 from ._maps import MaterialMaps as MaterialMaps

@@ -22,6 +22,19 @@ from brdf import safe_normalize
 MODELS = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "subsurface")
 LAMBERT, BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE = range(len(MODELS))
 
+# Valid ranges of the maps (checked by MaterialMaps and material_maps, so a
+# map set read from files is checked too). Albedos are fractions of energy:
+# rho_d (Lambert albedo, or a profile's total diffuse reflectance) and rho_s
+# (Schlick F0, or the Blinn-Phong lobe's albedo) in [0, 1]. GGX alpha in
+# (0, ALPHA_MAX]: alpha = 1 is already a nearly uniform lobe, the fitter's
+# upper bound, and no fitted or bundled map exceeds it (brdf clamps the lower
+# end at brdf.ALPHA_MIN = 1e-4 when evaluating). RANGE_TOL absorbs float32
+# rounding of values at a bound (a sigmoid at 1, a blend of two 1s).
+ALPHA_MAX = 1.0
+RANGE_TOL = 1e-6
+# Normals shorter than this carry no direction (an unset or zeroed texel).
+_MIN_NORMAL = 1e-6
+
 
 class LadderBRDF(brdf.AbstractBRDF):
     """The BRDF of a material-map set in each sample's local frame:
@@ -73,7 +86,15 @@ class MaterialMaps(eqx.Module):
     normal, tangent [P, 3]: the fitted shading frame in world space (unit,
     orthogonal). mfp [P, 3]: diffuse mean free path in mm (Christensen & Burley
     2015's ``dmfp``; used where model = SUBSURFACE). model [P]: ladder rung
-    (index into ``MODELS``)."""
+    (index into ``MODELS``).
+
+    Valid values (checked at construction when the maps are concrete, i.e.
+    not traced under jit / grad; ValueError naming the map and the count of
+    bad samples): every map finite; rho_d, rho_s in [0, 1] and alpha in
+    (0, ``ALPHA_MAX`` = 1] (to ``RANGE_TOL``); mfp >= 0; model an integer rung
+    0..4; normal nonzero and tangent not parallel to it.
+    :func:`material_maps` also makes the normals unit and the tangents
+    orthogonal to them."""
 
     rho_d: Float[Array, "sample 3"]
     rho_s: Float[Array, "sample 1"]
@@ -82,6 +103,12 @@ class MaterialMaps(eqx.Module):
     tangent: Float[Array, "sample 3"]
     mfp: Float[Array, "sample 3"]
     model: Int[Array, " sample"]
+
+    def __check_init__(self):
+        values = _concrete_maps(self)
+        # Wrong shapes are reported by the consumers that know the sample count (relight.render.check_inputs).
+        if values is not None and _documented_shapes(values):
+            _check_values("MaterialMaps", *values)
 
     @property
     def num_samples(self) -> int:
@@ -129,25 +156,90 @@ def material_maps(surface: stage.Surface, rho_d, rho_s=None, alpha=None, *, norm
         alpha2 = f(a, 2, "alpha")
     else:
         alpha2 = np.repeat(f(a, 1, "alpha"), 2, axis=1)
-    if np.any(alpha2 <= 0):
-        raise ValueError("material_maps: alpha (roughness) must be > 0")
-    if np.any(rho_d < 0) or np.any(rho_s < 0):
-        raise ValueError("material_maps: rho_d and rho_s must be >= 0")
     normal = f(surface.normal if normal is None else normal, 3, "normal")
     tangent = f(surface.tangent if tangent is None else tangent, 3, "tangent")
     mfp = f(0.0 if mfp is None else mfp, 3, "mfp")
-    if np.any(mfp < 0):
-        raise ValueError("material_maps: mfp (mean free path) must be >= 0")
     if model is None:
         aniso = np.any(np.abs(alpha2[:, 0] - alpha2[:, 1]) > 1e-6 * alpha2[:, 0])
         default = LAMBERT if rho_s is None or not np.any(rho_s > 0) else (GGX_ANISO if aniso else GGX)
         model = np.full(P, default, np.int32)
-    model = np.broadcast_to(np.asarray(model, np.int32), (P,))
-    if np.any((model < 0) | (model >= len(MODELS))):
-        raise ValueError(f"material_maps: model indices must be in 0..{len(MODELS) - 1} ({', '.join(MODELS)})")
+    m = np.asarray(model)
+    try:
+        m = np.broadcast_to(m, (P,))
+    except ValueError:
+        raise ValueError(f"material_maps: model must broadcast to [{P}], got shape {m.shape}") from None
+    _check_values("material_maps", rho_d, rho_s, alpha2, normal, tangent, mfp, m)
+    # Unit normals and tangents orthogonal to them, as the type documents; rows
+    # that already are (to float32 rounding) are left bit for bit as given.
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(np.abs(length - 1.0) > 1e-6, normal / length, normal)
+    t_perp = tangent - np.sum(tangent * normal, 1, keepdims=True) * normal
+    t_unit = t_perp / np.linalg.norm(t_perp, axis=1, keepdims=True)
+    off = np.any(np.abs(t_unit - tangent) > 1e-6, axis=1, keepdims=True)
+    tangent = np.where(off, t_unit, tangent)
     dt = jnp.asarray(surface.position).dtype
     j = lambda x: jnp.asarray(x, dt)  # noqa: E731
-    return MaterialMaps(j(rho_d), j(rho_s), j(alpha2), j(normal), j(tangent), j(mfp), jnp.asarray(model))
+    return MaterialMaps(j(rho_d), j(rho_s), j(alpha2), j(normal), j(tangent), j(mfp), jnp.asarray(m, jnp.int32))
+
+
+def _concrete_maps(maps: MaterialMaps):
+    """The maps as NumPy arrays, or None when any is traced (under jit / grad)."""
+    try:
+        return tuple(np.asarray(getattr(maps, k)) for k in ("rho_d", "rho_s", "alpha", "normal", "tangent", "mfp",
+                                                             "model"))
+    except Exception:  # a tracer: values unknown until run
+        return None
+
+
+def _documented_shapes(values) -> bool:
+    rho_d, rho_s, alpha, normal, tangent, mfp, model = values
+    P = rho_d.shape[0] if rho_d.ndim else -1
+    want = ((P, 3), (P, 1), (P, 2), (P, 3), (P, 3), (P, 3), (P,))
+    return all(tuple(v.shape) == w for v, w in zip(values, want, strict=True))
+
+
+def _bad(where: str, name: str, what: str, bad: np.ndarray, values: np.ndarray | None = None) -> None:
+    """Raise ValueError naming the map, the rule and the count of bad samples."""
+    rows = np.flatnonzero(np.any(bad.reshape(bad.shape[0], -1), axis=1)) if bad.ndim else np.zeros(0, int)
+    if len(rows) == 0:
+        return
+    seen = ""
+    if values is not None:
+        v = np.asarray(values, np.float64)[bad]
+        seen = f"; found {v.min():.4g} .. {v.max():.4g}" if v.size else ""
+    raise ValueError(f"{where}: {name} {what}; {len(rows)} of {bad.shape[0]} sample(s) are not "
+                     f"(first: {rows[:5].tolist()}){seen}")
+
+
+def _check_values(where, rho_d, rho_s, alpha, normal, tangent, mfp, model) -> None:
+    """The checks of the MaterialMaps docstring, on NumPy arrays."""
+    maps = {"rho_d (diffuse albedo)": rho_d, "rho_s (specular albedo, Schlick F0)": rho_s,
+            "alpha (GGX roughness)": alpha, "normal": normal, "tangent": tangent, "mfp (mean free path)": mfp}
+    arrays = {}
+    for name, x in maps.items():
+        x = np.asarray(x, np.float64)
+        _bad(where, name, "must be finite (no NaN or Inf)", ~np.isfinite(x))
+        arrays[name.split(" ")[0]] = x
+    lo, hi = -RANGE_TOL, 1.0 + RANGE_TOL
+    for name in ("rho_d (diffuse albedo)", "rho_s (specular albedo, Schlick F0)"):
+        x = arrays[name.split(" ")[0]]
+        _bad(where, name, "must be in [0, 1]", (x < lo) | (x > hi), x)
+    a = arrays["alpha"]
+    _bad(where, "alpha (GGX roughness)", f"must be in (0, {ALPHA_MAX:g}]", (a <= 0) | (a > ALPHA_MAX + RANGE_TOL), a)
+    _bad(where, "mfp (mean free path)", "must be >= 0 (mm)", arrays["mfp"] < 0, arrays["mfp"])
+    m = np.asarray(model)
+    mf = m.astype(np.float64)
+    bad = ~np.isfinite(mf) | (mf != np.round(mf)) | (mf < 0) | (mf > len(MODELS) - 1)
+    _bad(where, "model", f"must be an integer rung of the ladder 0..{len(MODELS) - 1} ({', '.join(MODELS)})",
+         bad, mf)
+    n = arrays["normal"]
+    length = np.linalg.norm(n, axis=1)
+    _bad(where, "normal", "must be nonzero (a unit direction; zero-length normals have none)",
+         length < _MIN_NORMAL)
+    t = arrays["tangent"]
+    t_perp = t - np.sum(t * n, 1, keepdims=True) * n / np.maximum(length, _MIN_NORMAL)[:, None] ** 2
+    _bad(where, "tangent", "must be nonzero and not parallel to the normal",
+         np.linalg.norm(t_perp, axis=1) < _MIN_NORMAL * np.maximum(np.linalg.norm(t, axis=1), 1.0))
 
 
 def _per_sample(x, P, c, name):

@@ -70,7 +70,7 @@ __all__ = ["METHODS", "DEFAULTS", "render_samples"]
 # Settings of each method and their defaults (documented in render_samples and
 # on the method objects of relight.render._options, their one home).
 DEFAULTS: dict[str, dict[str, Any]] = {name: cls().settings() for name, cls in _BY_NAME.items()}
-_COMMON = {"chunk": None, "eta": 1.4, "operator": None, "rotation": None, "dtype": jnp.float32}
+_COMMON = {"chunk": None, "eta": 1.4, "operator": None, "rotation": None, "dtype": jnp.float32, "terminator": True}
 
 # Directions (lights or environment pixels) per step of the scan inside the
 # directional kernel: the working set is chunk x _DIR_BLOCK x C floats (~10
@@ -114,6 +114,8 @@ def _settings(method, settings: dict) -> dict:
         out["chunk"] = int(out["chunk"])
     if not (isinstance(out["eta"], (int, float)) and out["eta"] >= 1.0):
         raise ValueError(f"setting 'eta' (relative index of refraction) must be a float >= 1, got {out['eta']!r}")
+    if not isinstance(out["terminator"], bool):
+        raise ValueError(f"setting 'terminator' must be True or False, got {out['terminator']!r}")
     if out["rotation"] is not None:
         r = np.asarray(out["rotation"], np.float64)
         if r.shape != (3, 3) or not np.all(np.isfinite(r)) or not np.allclose(r @ r.T, np.eye(3), atol=1e-4):
@@ -153,18 +155,20 @@ def check_inputs(maps, surface, env, wo_world=None):
 
 # --------------------------------------------------------------------------- ray casting
 # Occlusion queries along arbitrary directions (the Monte Carlo reference) are
-# stage.Occluder's: the one ray caster, with the same origin offset and
-# horizon test as stage.light_visibility.
+# stage.Occluder's: the one ray caster, with the same ray origins (off the
+# geometric normal, from the shadow-terminator point) and horizon test as
+# stage.light_visibility.
 
-def direction_visibility(mesh: stage.Mesh, surface: stage.Surface, directions: np.ndarray) -> np.ndarray:
+def direction_visibility(mesh: stage.Mesh, surface: stage.Surface, directions: np.ndarray,
+                         terminator: bool = True) -> np.ndarray:
     """bool [P, D]: sample p sees distant direction d (``stage.light_visibility``
-    with a distant rig whose lights are ``directions``)."""
+    with a distant rig whose lights are ``directions``; ``terminator`` as there)."""
     d = np.asarray(directions, np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     with jax.ensure_compile_time_eval():  # concrete under an outer jit: the ray caster reads it on the host
         rig = stage.Rig(position=jnp.asarray(d * _FAR_MM, jnp.float32), intensity=jnp.ones((len(d), 1), jnp.float32),
                         solid_angle=jnp.full((len(d),), 4 * np.pi / len(d), jnp.float32), near_field=False)
-    return np.asarray(stage.light_visibility(mesh, surface, rig))
+    return np.asarray(stage.light_visibility(mesh, surface, rig, terminator=terminator))
 
 
 def _rows(vis, idx: np.ndarray) -> np.ndarray:
@@ -465,6 +469,7 @@ class Geometry:
 def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, mesh, visibility=None) -> Geometry:
     P = surface.num_samples
     g = Geometry()
+    term = lt.settings["terminator"]
     if lt.method in ("rig", "dense", "lights"):
         D = lt.num_directions()
         if lt.method == "lights":
@@ -476,11 +481,9 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
             g.vis = visibility
         elif mesh is not None:
             if lt.method == "rig":
-                g.vis = stage.light_visibility(mesh, surface, lt.rig, packed=True)
-            elif lt.method == "lights":
-                g.vis = stage.PackedMask.pack(direction_visibility(mesh, surface, np.asarray(lt.dirs)))
+                g.vis = stage.light_visibility(mesh, surface, lt.rig, packed=True, terminator=term)
             else:
-                g.vis = stage.PackedMask.pack(direction_visibility(mesh, surface, lt.dirs))
+                g.vis = stage.PackedMask.pack(direction_visibility(mesh, surface, np.asarray(lt.dirs), term))
         return g
     if visibility is not None:
         raise ValueError(f"method {lt.method!r} takes no visibility argument (it casts its own rays from mesh)")
@@ -491,7 +494,7 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
             g.bent = None
             return g
         dirs = brdf.fibonacci_sphere(lt.settings["ao_rays"], axis=1)
-        vis = direction_visibility(mesh, surface, dirs)  # [P, K]
+        vis = direction_visibility(mesh, surface, dirs, term)  # [P, K]
         n = np.asarray(maps.frame(surface).normal, np.float64)
         cos = np.maximum(n @ dirs.T, 0.0) * (np.asarray(surface.normal, np.float64) @ dirs.T > 0)  # [P, K]
         tot = cos.sum(1, keepdims=True)
@@ -508,7 +511,7 @@ def prepare_geometry(lt: Lighting, maps: MaterialMaps, surface: stage.Surface, m
         g.bent = jnp.asarray(bent, dt)
         return g
     if mesh is not None:
-        g.rays = stage.Occluder(mesh, surface)
+        g.rays = stage.Occluder(mesh, surface, term)
     return g
 
 
@@ -645,7 +648,8 @@ def _light_visibility(lt: Lighting, geo: Geometry, light, rotation):
     shadows cast anew."""
     if lt.method == "lights" and rotation is not None:
         if geo.mesh is not None:
-            return stage.PackedMask.pack(direction_visibility(geo.mesh, geo.surface, np.asarray(light, np.float64)))
+            return stage.PackedMask.pack(direction_visibility(geo.mesh, geo.surface, np.asarray(light, np.float64),
+                                                              lt.settings["terminator"]))
         if geo.vis is not None:
             raise ValueError("method 'lights' with a rotation moves its lights: pass mesh= to cast their shadows "
                              "(a given visibility= holds the unrotated lights' shadows)")
@@ -715,8 +719,9 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
 
     Args:
         maps: ``relight.MaterialMaps`` over the surface's P samples.
-        surface: ``stage.Surface`` (positions in mm; its normals are the
-            geometric ones used to offset rays and for the horizon test).
+        surface: ``stage.Surface`` (positions in mm; its interpolated
+            normals give the horizon test; shadow rays leave along the mesh's
+            face normals, see ``stage.Occluder``).
         env: ``relight.envmap.EnvMap``.
         wo_world: [P, 3] or [3] unit directions toward the viewer (world).
         method: a method object (``relight.render.Rig``, ``Dense``, ``Fast``,
@@ -740,7 +745,10 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
         profile energy); ``rotation`` a 3x3 rotation of the environment (light
         that arrived from d arrives from R d; exact for every method, no
         resampling, except "dense" at rotations other than whole pixels about
-        y); ``dtype`` (float32).
+        y); ``dtype`` (float32); ``terminator`` (True) shadow rays from the
+        smooth surface the interpolated normals describe (Hanika 2021, see
+        ``stage.Occluder``), False from the flat facets (as Mitsuba 3 and
+        pbrt-v4 cast them, for like-for-like comparisons).
         "rig": ``weights`` "voronoi" (default, ``light_weights``) or
         "barycentric"; ``supersample`` (1) of the weights.
         "dense": ``resolution`` (32) rows of the lat-long quadrature grid

@@ -81,3 +81,25 @@ def test_bad_method_objects(small):
         render.render_samples(maps, surf, env, wo, method=object())
     with pytest.raises(ValueError, match="unknown relighting method"):
         render.render_samples(maps, surf, env, wo, method="raytrace")
+
+
+def test_terminator_setting(small):
+    """On a convex coarse sphere nothing but the horizon blocks light: with the
+    shadow-terminator origins (default) every method that casts rays renders
+    what it renders without a mesh (no shadows); ``terminator=False`` (rays
+    from the flat facets, as Mitsuba casts them) darkens the facets turned away
+    from the light on the terminator side. A non-bool is refused."""
+    mesh, _, _, env, _ = small
+    surf = stage.texel_samples(mesh, 32)
+    maps = relight.material_maps(surf, 0.5, 0.04, 0.3)
+    wo = np.asarray(surf.normal)
+    for method in (render.Dense(rows=8), render.Lights(lights=32)):
+        free = np.asarray(render.render_samples(maps, surf, env, wo, method=method))
+        smooth = np.asarray(render.render_samples(maps, surf, env, wo, method=method, mesh=mesh))
+        flat = np.asarray(render.render_samples(maps, surf, env, wo, method=method, mesh=mesh, terminator=False))
+        # float32 kernels: 1e-5 of the brightest sample.
+        np.testing.assert_allclose(smooth, free, rtol=0, atol=1e-5 * free.max())
+        assert np.all(flat <= smooth + 1e-6 * free.max())
+        assert (smooth - flat).max() > 1e-3 * free.max()
+    with pytest.raises(ValueError, match="terminator"):
+        render.render_samples(maps, surf, env, wo, method="dense", mesh=mesh, terminator=1)
