@@ -134,6 +134,8 @@ class Fit(eqx.Module):
     solver: str = eqx.field(static=True, default="lm")
     mfp_sigma: Float[Array, "sample 3"] | None = None
     mfp_rung: Int[Array, " sample"] | None = None
+    # ambiguous's bar on the albedo's relative 1-sigma.
+    AMBIGUOUS_RELATIVE_SIGMA: ClassVar[float] = 0.1
     # mfp_identified's bar on the 1-sigma of ln mfp: 25% relative.
     IDENTIFIED_SIGMA: ClassVar[float] = 0.25
 
@@ -154,6 +156,17 @@ class Fit(eqx.Module):
         if self.mfp_sigma is None:
             return None
         return jnp.isfinite(self.mfp_sigma) & (self.mfp_sigma < self.IDENTIFIED_SIGMA)
+
+    @property
+    def ambiguous(self):
+        """[P] bool: samples whose albedo the data leave loose, a 1-sigma above
+        ``AMBIGUOUS_RELATIVE_SIGMA`` (10%) of rho_d in some channel (or
+        unknown). Noise then lets a broad grey lobe trade places with the
+        diffuse term at an equal or lower cost than the truth: on a 162-light
+        dome at 1000 photons every texel below 0.8x its true albedo is flagged
+        (tests/relight/test_fit_ambiguous.py at 100 photons on a sphere)."""
+        rel = self.uncertainty[:, :3] / jnp.maximum(self.rho_d, 1e-6)
+        return jnp.any(~(rel <= self.AMBIGUOUS_RELATIVE_SIGMA), axis=1) & (self.observed >= _MIN_OBSERVATIONS)
 
     @property
     def unidentified(self):
