@@ -70,5 +70,8 @@ from ._surface import texel_samples as texel_samples
 from ._visibility import Occluder as Occluder
 from ._visibility import PackedMask as PackedMask
 from ._visibility import camera_visibility as camera_visibility
+from ._visibility import face_normals as face_normals
 from ._visibility import light_visibility as light_visibility
+from ._visibility import offset_origin as offset_origin
 from ._visibility import primary_hits as primary_hits
+from ._visibility import terminator_point as terminator_point

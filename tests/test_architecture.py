@@ -34,7 +34,7 @@ ALLOWED = {
 # Third-party imports: the lower rooms stay light (docs/ARCHITECTURE.md's "may import" column; jaxtyping, for the
 # annotations, is everywhere). relight may use any declared dependency.
 THIRD_PARTY = {
-    "brdf": {"jax", "equinox", "numpy", "jaxtyping"},
+    "brdf": {"jax", "equinox", "numpy", "jaxtyping", "h5py"},  # h5py: the NBRDF networks of measured materials
     "skin_bssrdf": {"jax", "equinox", "numpy", "jaxtyping", "scipy"},
     "stage": {"jax", "equinox", "numpy", "jaxtyping", "scipy", "trimesh"},
     "relight": None,

@@ -17,7 +17,8 @@ from tqdm.auto import tqdm
 import skin_bssrdf
 import stage
 
-from ..io._json import write_json as write_json  # reports and settings (atomic, indent 2)
+from ..io._json import write_json as _write_json
+from ..io._resultset import ForeignFolderError, result_set, writing
 
 
 class CLIError(Exception):
@@ -57,10 +58,114 @@ def bar(total, desc, quiet, leave=False) -> Bar:
     return Bar(total, desc, quiet, leave)
 
 
+def write_json(path, obj, indent: int = 2) -> None:
+    """Reports and settings: ``relight.io``'s JSON writer (atomic; NaN and Inf refused), a failed write
+    naming the file (a full disk as NoSpaceError)."""
+    with writing(path):
+        _write_json(path, obj, indent)
+
+
 def write_settings(out: Path, command: str, args, **resolved) -> None:
     """settings.json: the command, every flag as given/defaulted, and the resolved values."""
     flags = {k: v for k, v in vars(args).items() if k not in ("func", "command")}
     write_json(Path(out) / "settings.json", {"command": f"relight {command}", "flags": flags, "resolved": resolved})
+
+
+def output_set(out: str | os.PathLike, command: str, quiet: bool = False, keep=(), create: bool = True,
+               unhashed=(), legacy=None):
+    """The result set ``--out`` of ``relight <command>`` (``relight.io._resultset.result_set``): the folder
+    locked (a second writer fails naming it), refused unless it is absent, empty or an earlier output of this
+    command, built in a temporary sibling (the context's value) and swapped in whole with its manifest on
+    success. Leftovers of killed runs are deleted (a warning on stderr says which). ``keep``, ``create``,
+    ``unhashed`` and ``legacy`` (a folder this command wrote before manifests, which it may replace) are
+    ``result_set``'s."""
+    import sys
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"--out {out}: exists and is not a folder")
+
+    def told(paths) -> None:
+        if not quiet:
+            print(f"relight {command}: warning: removed {len(paths)} leftover(s) of an interrupted run next to "
+                  f"{out}: {', '.join(p.name for p in paths)}", file=sys.stderr)
+
+    return result_set(out, command, command=f"relight {command}", keep=keep, create=create, unhashed=unhashed,
+                      legacy=_own_or(command, legacy), on_stale=told)
+
+
+def _own_or(command: str, legacy):
+    """``legacy`` widened by what this command wrote before result-set manifests: a folder whose
+    settings.json names ``relight <command>``."""
+    def own(folder: Path) -> bool:
+        import json
+
+        try:
+            doc = json.loads((folder / "settings.json").read_text())
+        except (OSError, ValueError, UnicodeDecodeError):
+            doc = None
+        return (isinstance(doc, dict) and doc.get("command") == f"relight {command}") or bool(legacy and
+                                                                                               legacy(folder))
+
+    return own
+
+
+def check_out(out: str | os.PathLike, command: str, keep=(), legacy=None) -> Path:
+    """Refuse ``--out`` early (before any work) unless a later :func:`output_set` would take it: CLIError
+    naming the folder and what it holds."""
+    from ..io._resultset import check_output_folder
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"--out {out}: exists and is not a folder")
+    try:
+        check_output_folder(out, command, keep=keep, legacy=_own_or(command, legacy))
+    except ForeignFolderError as err:
+        raise CLIError(f"--out {err}") from None
+    return out
+
+
+def _platform_error() -> str | None:
+    """None when JAX's backend starts; else one line saying the requested platform is missing and what to do."""
+    import jax
+
+    try:
+        jax.devices()
+    except Exception as err:  # jax raises RuntimeError or a bare AssertionError (JAX_PLATFORMS=cuda on a CPU wheel)
+        asked = os.environ.get("JAX_PLATFORMS") or os.environ.get("JAX_PLATFORM_NAME")
+        why = f" ({err})" if str(err) else ""
+        if asked:
+            return (f"JAX_PLATFORMS={asked}: that platform is not available in this JAX install{why}; unset "
+                    "JAX_PLATFORMS (or set it to cpu), or install the JAX build for it (pip install 'jax[cuda12]')")
+        return f"JAX could not start a backend{why}; set JAX_PLATFORMS=cpu to use the CPU"
+    return None
+
+
+def check_numbers(args) -> None:
+    """Refuse a non-finite float flag (nan, inf) before anything is computed or written: CLIError naming it."""
+    import math
+
+    for key, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise CLIError(f"--{key.replace('_', '-')} {value}: must be a finite number")
+
+
+def guarded(run):
+    """``run(args)`` after the checks every command shares: a JAX backend that starts (else one line, exit 2)
+    and finite float flags (else a CLIError)."""
+    import functools
+    import sys
+
+    @functools.wraps(run)
+    def wrapper(args) -> int:
+        msg = _platform_error()
+        if msg is not None:
+            print(f"relight {getattr(args, 'command', '')}: error: {msg}", file=sys.stderr)
+            return 2
+        check_numbers(args)
+        return run(args)
+
+    return wrapper
 
 
 # ------------------------------------------------------------------ the shared flags
@@ -89,7 +194,7 @@ def add_image_size(p: argparse.ArgumentParser, default: int = 256, what: str = "
 def finish_parser(p: argparse.ArgumentParser, run) -> None:
     """What every working command ends with: ``--quiet`` and the function that runs it."""
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    p.set_defaults(func=guarded(run))
 
 
 def at_least(flag: str, value: int, minimum: int) -> None:
@@ -254,7 +359,8 @@ def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, cu
     elif img.shape[-1] == 2:
         img = np.concatenate([img, np.zeros_like(img[..., :1])], -1)
     exposure = auto_exposure(img) if exposure is None else exposure
-    write_png(path, to_uint8(tonemap(img, exposure=exposure, curve=curve)))
+    with writing(path):
+        write_png(path, to_uint8(tonemap(img, exposure=exposure, curve=curve)))
 
 
 def ensure_out(out: str | os.PathLike) -> Path:

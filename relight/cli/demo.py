@@ -148,8 +148,9 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
     from ..render import render_view
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    from ._common import envmap_path
+    from ._common import check_out, envmap_path, output_set
+
+    check_out(out, "demo")  # refused before the work; output_set checks again, locked, before writing
 
     envmap = envmap_path(None if envmap is None else str(envmap))
     times = {}
@@ -212,16 +213,18 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
         "operator_radius_mm": radius,
         "timings_s": {k: round(v, 2) for k, v in times.items()},
     }
-    t0 = time.perf_counter()
-    _write(out, mesh, surface, truth, maps, view_cam, relit_truth, relit_fit, covered, report,
-           texture_set, write_texture_set)
-    report["timings_s"]["write"] = round(time.perf_counter() - t0, 2)
     settings = {"command": "relight demo", "out": str(out), "resolution": resolution, "envmap": str(envmap),
                 "image_size": image_size, "cameras": len(cams), "noise": noise, "seed": seed, "passes": passes,
                 "rig": "light_stage_x", "textures": "Lee Perry-Smith head scan (Infinite Realities, CC-BY 3.0)"}
-    atomic_write_text(out / "settings.json", json.dumps(settings, indent=2))
-    atomic_write_text(out / "report.json", json.dumps(report, indent=2, allow_nan=False))
-    atomic_write_text(out / "report.md", _report_md(report))
+    # The whole demo folder is one result set: built beside out, swapped in with its manifest.
+    with output_set(out, "demo", quiet) as tmp:
+        t0 = time.perf_counter()
+        _write(tmp, mesh, surface, truth, maps, view_cam, relit_truth, relit_fit, covered, report,
+               texture_set, write_texture_set)
+        report["timings_s"]["write"] = round(time.perf_counter() - t0, 2)
+        atomic_write_text(tmp / "settings.json", json.dumps(settings, indent=2))
+        atomic_write_text(tmp / "report.json", json.dumps(report, indent=2, allow_nan=False))
+        atomic_write_text(tmp / "report.md", _report_md(report))
     return report
 
 

@@ -44,8 +44,9 @@ from ..io import (
     spec_mesh,
     texture_set,
     write_exr,
-    write_texture_set,
 )
+from ..io._resultset import kill_point
+from ..io._texture_set import write_texture_set_files
 from ..materials._maps import MODELS, SUBSURFACE
 from ._common import (
     CLIError,
@@ -55,14 +56,16 @@ from ._common import (
     add_rig_file_flags,
     at_least,
     bar,
-    ensure_out,
+    check_out,
     envmap_path,
     finish_parser,
     mesh_from_args,
+    output_set,
     warn_mesh_size,
     write_json,
     write_preview,
     write_settings,
+    writing,
 )
 
 # relight.fit's rungs (subsurface is fitted afterwards by fit_subsurface) and the ladder.
@@ -167,12 +170,9 @@ def fit_kwargs(fit_fn, method: str, model: str | None = None, normals: bool = Fa
 
 
 def run(args) -> int:
-    import jax
-
     import relight
 
     from ..envmap import load_envmap
-    from ..io import write_mitsuba_scene
 
     envmap = envmap_path(args.envmap)
     load_envmap(envmap)  # refuse a missing or corrupt map before the fit, not after
@@ -189,6 +189,20 @@ def run(args) -> int:
         return _run_diligent(args, capture_dir, {**kwargs, "block": args.block, "devices": devices})
     if args.subsample != 1:
         raise CLIError("--subsample applies to DiLiGenT folders only")
+    # Refused before the capture is read; output_set checks again with the folder locked.
+    check_out(args.out, "fit", keep=(PARTS,))
+    with output_set(args.out, "fit", args.quiet, keep=(PARTS,)) as tmp:
+        return _run_texel(args, capture_dir, photos, kwargs, devices, envmap, times, t0, Path(args.out), tmp)
+
+
+def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, envmap: Path, times: dict, t0: float,
+               out: Path, tmp: Path) -> int:
+    """The fit of a texel-space or photo capture into the result set built at ``tmp`` (swapped to ``out``
+    by the caller); the parts go to ``out/.parts``, which survives a killed run (--resume)."""
+    import jax
+
+    from ..io import write_mitsuba_scene
+
     metadata = {}
     coverage = None
     if photos:
@@ -197,7 +211,7 @@ def run(args) -> int:
         capture, surface, mesh, metadata = _read_texel(args, capture_dir)
         info = metadata["surface"]
     times["read_s"] = time.perf_counter() - t0
-    out = ensure_out(args.out)
+    out.mkdir(parents=True, exist_ok=True)  # for out/.parts; the set itself is built in tmp
 
     t0 = time.perf_counter()
     fitted, parts = _fit_in_parts(args, capture, surface, out, kwargs, devices)
@@ -213,33 +227,36 @@ def run(args) -> int:
     t0 = time.perf_counter()
     cams = [stage.camera_to_dict(c, f"cam{i:03d}") for i, c in enumerate(capture.cameras)]
     # The capture's rig travels with the maps: `relight render --method rig` uses it by default.
-    stage.save_rig(out / "rig.json", capture.rig)
+    with writing(tmp / "rig.json"):
+        stage.save_rig(tmp / "rig.json", capture.rig)
     map_meta = {"capture": str(capture_dir.resolve()), "fit_options": kwargs, "cameras": cams, "rig": "rig.json",
                 "source": "relight fit"}
     if sss is not None:
         map_meta["subsurface"] = sss  # its eta is what `relight render` uses
     textures = texture_set(maps, surface, surface_info=info, metadata=map_meta)
-    write_texture_set(out, textures)
+    write_texture_set_files(tmp, textures)
     cam = capture.cameras[0]
     if cam.orthographic:
         scene = None
     else:
-        scene = write_mitsuba_scene(out, mesh, textures, cam, envmap)
+        with writing(tmp / "scene.xml"):
+            scene = out / write_mitsuba_scene(tmp, mesh, textures, cam, envmap).relative_to(tmp)
     # Previews: texel-space maps and the maps as the capture's first camera sees them.
     texel_previews = (("albedo", textures.albedo), ("specular", textures.specular),
                       ("roughness", textures.alpha[..., :1]))
     for name, img in texel_previews:
-        write_preview(out / f"{name}.png", img, exposure=0.0, curve="none")
+        write_preview(tmp / f"{name}.png", img, exposure=0.0, curve="none")
     if sss is not None:
         # mean_free_path.png: mfp / the largest mfp of the set (one scale for R, G, B), linear.
         top = float(np.max(textures.mfp))
-        write_preview(out / "mean_free_path.png", textures.mfp / max(top, 1e-12), exposure=0.0, curve="none")
+        write_preview(tmp / "mean_free_path.png", textures.mfp / max(top, 1e-12), exposure=0.0, curve="none")
     views = texture_view(mesh, cam, {"albedo": textures.albedo, "roughness": textures.alpha[..., :1]})
     for name, img in views.items():
-        write_exr(out / f"{name}_view.exr", img)
-        write_preview(out / f"{name}_view.png", img, exposure=0.0, curve="none")
+        with writing(tmp / f"{name}_view.exr"):
+            write_exr(tmp / f"{name}_view.exr", img)
+        write_preview(tmp / f"{name}_view.png", img, exposure=0.0, curve="none")
     if coverage is not None:
-        _write_coverage(out, surface, coverage)
+        _write_coverage(tmp, surface, coverage)
     times["write_s"] = time.perf_counter() - t0
 
     # The report reads the fit on the host: NumPy leaves, so its per-texel tests compile nothing.
@@ -251,14 +268,21 @@ def run(args) -> int:
                                                   times["subsurface_s"])
     if coverage is not None:
         report["photos"] = coverage.to_dict()
-    write_json(out / "report.json", report)
-    atomic_write_text(out / "report.md", _report_md(report))
-    write_settings(out, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
+    write_json(tmp / "report.json", report)
+    with writing(tmp / "report.md"):
+        atomic_write_text(tmp / "report.md", _report_md(report))
+    write_settings(tmp, "fit", args, capture=str(Path(args.capture).resolve()), envmap=str(envmap),
                    fit_options=kwargs, mesh=info, samples=surface.num_samples,
                    input="photos" if photos else "texel", subsurface=sss,
                    mitsuba_scene=None if scene is None else str(scene),
                    block=args.block, devices=parts["devices"], parts=str(out / PARTS),
                    streamed=not isinstance(capture, stage.Capture))
+    if report["failed_fraction"] >= 0.5:
+        import sys
+
+        print(f"relight fit: warning: {100 * report['failed_fraction']:.0f}% of the texels are flagged (a solver "
+              "failure, or fewer than 8 valid lights: a rig with more lights, or more cameras, covers them); their "
+              "maps hold the defaults", file=sys.stderr)
     if not args.quiet:
         tail = ""
         if sss is not None:
@@ -311,11 +335,15 @@ def _fit_in_parts(args, capture, surface, out: Path, kwargs: dict, devices):
     if not args.resume:
         _clear_parts(folder)
     fitted_blocks = []
+
+    def on_block(s, e, _):
+        fitted_blocks.append((s, e))
+        kill_point("block")  # tests/relight/test_kill.py: killed with the map set half replaced, as reported
+
     with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
         try:
             fit_parts(capture, surface, folder, block=args.block, process_index=0, process_count=1,
-                      on_block=lambda s, e, _: fitted_blocks.append((s, e)), progress=b, devices=devices,
-                      **kwargs)
+                      on_block=on_block, progress=b, devices=devices, **kwargs)
         except PartsFingerprintError as err:
             raise CLIError(f"--resume: {folder} holds the parts of another fit (the capture, the surface or a "
                            f"setting such as --model, --method, --normals, --block or --devices changed): rerun "
@@ -506,9 +534,7 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
     Lambertian least-squares baseline's) and settings.json."""
     import dataclasses
 
-    import relight
-
-    from ..io import diligent_capture, lambert_normals, read_diligent, write_png
+    from ..io import diligent_capture, read_diligent
 
     _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
     if args.resume:
@@ -523,7 +549,23 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
         d = dataclasses.replace(d, mask=d.mask & keep)
     capture, surface = diligent_capture(d)
     times["read_s"] = time.perf_counter() - t0
-    out = ensure_out(args.out)
+    check_out(args.out, "fit")
+    with output_set(args.out, "fit", args.quiet) as tmp:
+        report = _diligent_fit(args, folder, d, capture, surface, kwargs, times, tmp)
+    out = Path(args.out)
+    if not args.quiet:
+        e = report["diligent"].get("normal_error_deg")
+        tail = "" if e is None else f"; mean normal error {e['mean']:.2f} deg"
+        print(f"wrote {out}/ (normals, albedo, report.md); {surface.num_samples} pixels{tail}")
+    return 0
+
+
+def _diligent_fit(args, folder: Path, d, capture, surface, kwargs: dict, times: dict, out: Path) -> dict:
+    """The DiLiGenT fit written into the result set being built at ``out``; returns the report."""
+    import relight
+
+    from ..io import lambert_normals, write_png
+
     kwargs = {"model": "blinn_phong", **kwargs, "normals": True}
     t0 = time.perf_counter()
     with bar(surface.num_samples, "fit (pixels)", args.quiet) as b:
@@ -532,11 +574,14 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
     t0 = time.perf_counter()
     n = np.asarray(fitted.normal, np.float64)
     normals = surface.to_texture(n.astype(np.float32))
-    write_exr(out / "normals.exr", normals)
+    with writing(out / "normals.exr"):
+        write_exr(out / "normals.exr", normals)
     rgb = np.where(d.mask[..., None], np.round(255 * np.clip(0.5 + 0.5 * normals, 0, 1)), 0).astype(np.uint8)
-    write_png(out / "normals.png", rgb)
+    with writing(out / "normals.png"):
+        write_png(out / "normals.png", rgb)
     albedo = surface.to_texture(np.asarray(fitted.rho_d, np.float32))
-    write_exr(out / "albedo.exr", albedo)
+    with writing(out / "albedo.exr"):
+        write_exr(out / "albedo.exr", albedo)
     write_preview(out / "albedo.png", albedo, exposure=0.0, curve="none")
     times["write_s"] = time.perf_counter() - t0
     report = _report(fitted, surface, folder, times)
@@ -550,14 +595,11 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
             "mean": float(err.mean()), "median": float(np.median(err)), "p95": float(np.percentile(err, 95)),
             "lambert_ls_baseline_mean": float(base.mean()), "lambert_ls_baseline_median": float(np.median(base))}
     write_json(out / "report.json", report)
-    atomic_write_text(out / "report.md", _report_md(report))
+    with writing(out / "report.md"):
+        atomic_write_text(out / "report.md", _report_md(report))
     write_settings(out, "fit", args, capture=str(folder.resolve()), input="diligent", fit_options=kwargs,
                    samples=surface.num_samples)
-    if not args.quiet:
-        e = report["diligent"].get("normal_error_deg")
-        tail = "" if e is None else f"; mean normal error {e['mean']:.2f} deg"
-        print(f"wrote {out}/ (normals, albedo, report.md); {surface.num_samples} pixels{tail}")
-    return 0
+    return report
 
 
 def _refuse_photo_flags(args, why: str) -> None:
@@ -627,7 +669,10 @@ def _report(fitted, surface, capture_dir: Path, times) -> dict:
     if hasattr(fitted, "unresolved"):
         r["unresolved_fraction"] = float(np.mean(np.asarray(fitted.unresolved)))
     truth_dir = capture_dir / "truth"
-    if is_map_set(truth_dir):
+    if is_map_set(truth_dir) and not (~failed).any():
+        # Every texel flagged (e.g. a 12-light dome leaves fewer than 8 valid lights a texel): nothing to compare.
+        r["against_truth"] = None
+    elif is_map_set(truth_dir):
         truth, _ = read_maps(truth_dir)
         t = truth.maps(surface)
         ok = ~failed
@@ -649,7 +694,9 @@ def _report_md(r: dict) -> str:
              f"than 8 valid lights). Median RMS residual {r['residual_rms_median']} (unflagged texels); over the "
              f"{r['observed_samples']} texels with observations, median steps {r['steps_median']:.0f} and median "
              f"valid observations {r['observed_median']:.0f}.", ""]
-    if "against_truth" in r:
+    if r.get("against_truth") is None and "against_truth" in r:
+        lines += ["Every texel is flagged, so there is no comparison against the simulated truth.", ""]
+    elif "against_truth" in r:
         a = r["against_truth"]
         lines += ["| against the simulated truth | median | 95th percentile |", "| --- | --- | --- |",
                   f"| diffuse albedo relative error | {a['diffuse_albedo_rel_error_median']:.2e} | "

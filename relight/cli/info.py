@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ._common import guarded
+
 
 def add_parser(sub) -> None:
     i = sub.add_parser("info", help="versions, devices, bundled data and the shared data folder")
-    i.set_defaults(func=run)
+    i.set_defaults(func=guarded(run))
 
 
 def _version(dist: str) -> str:

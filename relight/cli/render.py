@@ -32,13 +32,15 @@ from ._common import (
     at_least,
     auto_exposure,
     bar,
-    ensure_out,
+    check_out,
     envmap_path,
     finish_parser,
+    output_set,
     parse_cameras,
     parse_rig,
     write_preview,
     write_settings,
+    writing,
 )
 
 # "rig": the environment seen through a light rig's lights (Debevec et al. 2000)
@@ -117,6 +119,14 @@ def run(args) -> int:
     envmap = envmap_path(args.envmap)
     env = load_envmap(envmap)
     angles = _angles(args.rotate, args.frames)
+    check_out(args.out, "render")  # before the work; output_set checks again with the folder locked
+    with output_set(args.out, "render", args.quiet) as tmp:
+        return _render(src, kind, env, envmap, angles, args, Path(args.out), tmp)
+
+
+def _render(src: Path, kind: str, env, envmap: Path, angles, args, out: Path, tmp: Path) -> int:
+    """Relight ``src`` (a capture or a map set) and write the frames and settings.json into ``tmp``, the
+    result set that becomes ``out``."""
     t0 = time.perf_counter()
     subsurface = None
     if kind == "capture":
@@ -124,17 +134,21 @@ def run(args) -> int:
     else:
         frames, camera, method, subsurface = _model_based(src, env, angles, args)
     seconds = time.perf_counter() - t0
-    out = ensure_out(args.out)
+    bad = [k for k, f in enumerate(frames) if not np.all(np.isfinite(f))]
+    if bad:
+        raise CLIError(f"{src}: frame(s) {bad} came out with NaN or Inf pixels; nothing was written")
     # One exposure for the whole turntable, so frames are comparable.
     exposure = auto_exposure(np.stack(frames))
     names = ["relit"] if len(frames) == 1 else [f"relit_{k:03d}" for k in range(len(frames))]
-    for name, img in zip(names, frames, strict=True):
-        write_exr(out / f"{name}.exr", img)
-        write_preview(out / f"{name}.png", img, exposure=exposure)
-    write_settings(out, "render", args, input_kind=kind, envmap=str(envmap), method=method,
+    # settings.json first: a value JSON refuses stops the run before any image is written.
+    write_settings(tmp, "render", args, input_kind=kind, envmap=str(envmap), method=method,
                    rotations_deg=angles.tolist(), camera=stage.camera_to_dict(camera),
                    preview_exposure_stops=exposure, seconds=round(seconds, 3), subsurface=subsurface,
                    outputs=[f"{n}.exr" for n in names])
+    for name, img in zip(names, frames, strict=True):
+        with writing(tmp / f"{name}.exr"):
+            write_exr(tmp / f"{name}.exr", img)
+        write_preview(tmp / f"{name}.png", img, exposure=exposure)
     if not args.quiet:
         tail = "" if subsurface is None else (f", subsurface on {subsurface['samples']} texels "
                                               f"(eta {subsurface['eta']:g})")
@@ -233,7 +247,6 @@ def _run_photos(src: Path, args) -> int:
     ``relit_000.exr`` ... for a turntable."""
     from ..envmap import load_envmap, rotation_sweep_weights
     from ..io import read_photo_capture
-    from ..render import relight_olat_sweep
 
     if args.method != "rig":
         raise CLIError(f"--method {args.method}: a photo capture is relit image-based; only --method rig applies")
@@ -251,7 +264,19 @@ def _run_photos(src: Path, args) -> int:
     # fell on valid observations (inside the mask, below saturation).
     w_mean = np.mean(np.asarray(weights, np.float64), axis=-1, keepdims=True)  # [K, L, 1]
     total = np.maximum(np.sum(w_mean, axis=1), 1e-30)  # [K, 1]
-    out = ensure_out(args.out)
+    check_out(args.out, "render")
+    with output_set(args.out, "render", args.quiet) as tmp:
+        _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, tmp, t0)
+    if not args.quiet:
+        print(f"wrote {args.out}/ ({capture.n_views} camera(s) x {len(angles)} frame(s), photo capture, method rig)")
+    return 0
+
+
+def _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, out: Path, t0: float) -> None:
+    """Every camera's relit frames (and previews), then settings.json, into ``out`` (the result set being
+    built)."""
+    from ..render import relight_olat_sweep
+
     names = ["relit"] if len(angles) == 1 else [f"relit_{k:03d}" for k in range(len(angles))]
     exposure = None
     outputs = []
@@ -274,7 +299,9 @@ def _run_photos(src: Path, args) -> int:
             (out / view.name).mkdir(exist_ok=True)
             channels = {1: ["Y", "A"], 3: ["R", "G", "B", "A"]}.get(C, [*(f"C{c}" for c in range(C)), "A"])
             for name, img, cov in zip(names, frames, cover.reshape(-1, H, W, 1), strict=True):
-                write_exr(out / view.name / f"{name}.exr", np.concatenate([img, cov], axis=-1), channels=channels)
+                with writing(out / view.name / f"{name}.exr"):
+                    write_exr(out / view.name / f"{name}.exr", np.concatenate([img, cov], axis=-1),
+                              channels=channels)
                 write_preview(out / view.name / f"{name}.png", img, exposure=exposure)
                 outputs.append(f"{view.name}/{name}.exr")
             b.update(1)
@@ -284,6 +311,3 @@ def _run_photos(src: Path, args) -> int:
                    rig_file=str(capture.rig_file), lights=rig.num_lights, cameras=list(capture.names),
                    rotations_deg=angles.tolist(), preview_exposure_stops=exposure, seconds=round(seconds, 3),
                    outputs=outputs)
-    if not args.quiet:
-        print(f"wrote {out}/ ({capture.n_views} camera(s) x {len(angles)} frame(s), photo capture, method rig)")
-    return 0

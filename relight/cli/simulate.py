@@ -30,8 +30,6 @@ is written in."""
 from __future__ import annotations
 
 import math
-import secrets
-import shutil
 import time
 from pathlib import Path
 
@@ -57,7 +55,6 @@ from ..io import (
     write_photo_capture,
 )
 from ..io._store import MARKER as _STORE_MARKER  # the manifest: only a finished store is replaced
-from ..io._store import swap_folder
 from ..materials._maps import GGX, SUBSURFACE, material_maps
 from ._common import (
     MIN_IMAGE_SIZE,
@@ -70,15 +67,18 @@ from ._common import (
     add_rig_file_flags,
     at_least,
     bar,
+    check_out,
     demo_material,
     finish_parser,
     mesh_from_args,
+    output_set,
     parse_cameras,
     parse_rig,
     preset_mean_free_path,
     warn_mesh_size,
     write_preview,
     write_settings,
+    writing,
 )
 
 
@@ -281,13 +281,20 @@ def _check_form(args, out: Path) -> bool:
                        "so the store is written one light chunk of the whole surface at a time, not in blocks")
     if args.block is not None:
         at_least("--block", args.block, 64)
-    if store:
-        if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / _STORE_MARKER).is_file())):
-            raise CLIError(f"--out {out}: exists and is not a capture store (or an empty folder); refusing to "
-                           "replace it")
-    elif out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "capture.json").is_file())):
-        raise CLIError(f"--out {out}: exists and is not a capture folder (or an empty folder); refusing to replace it")
+    check_out(out, "simulate", legacy=_legacy(args, store))
     return store
+
+
+def _legacy(args, store: bool):
+    """What an earlier simulate wrote before result-set manifests (a capture store, a capture folder, a photo
+    capture), which this one may replace; anything else non-empty is refused (naming what it holds)."""
+    if store:
+        return lambda p: (p / _STORE_MARKER).is_file()
+    if args.space == "image":
+        from ..io import is_photo_capture
+
+        return is_photo_capture
+    return lambda p: (p / "capture.json").is_file()
 
 
 def _truth(args, sss_source, full, surface, quiet, times):
@@ -345,7 +352,8 @@ def _write_extras(out: Path, mesh, cams, surface, resolution, all_on, truth_maps
     covered = np.zeros((H, W), bool)
     covered.reshape(-1)[np.asarray(surface.texel_index)] = True
     view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on.reshape(H, W, -1), covered)})["all_lights"]
-    write_exr(out / "preview_all_lights.exr", view)
+    with writing(out / "preview_all_lights.exr"):
+        write_exr(out / "preview_all_lights.exr", view)
     write_preview(out / "preview_all_lights.png", view)
 
 
@@ -371,10 +379,18 @@ def run(args) -> int:
         raise CLIError(f"--subsurface {args.subsurface}: texel space only (--space texel): the diffusion operator "
                        "couples texels over the whole surface, which a camera-space capture does not sample")
     store = _check_form(args, out)
-    if args.space == "image":
-        return _run_image(args, out, sensor)
-    if store:
-        return _run_store(args, out, sensor, sss_source)
+    unhashed = ("zarr.json", "radiance/", "mask/") if store else ()  # a store's chunks: its own manifest's
+    # The folder is locked from here to the swap: a second simulate into it fails at once.
+    with output_set(out, "simulate", args.quiet, create=False, unhashed=unhashed, legacy=_legacy(args, store)) as tmp:
+        if args.space == "image":
+            return _run_image(args, out, sensor, tmp)
+        if store:
+            return _run_store(args, out, sensor, sss_source, tmp)
+        return _run_folder(args, out, sensor, sss_source, tmp)
+
+
+def _run_folder(args, out: Path, sensor, sss_source, tmp: Path) -> int:
+    """The capture-folder form, simulated in memory and written to ``tmp`` (the result set swapped to ``out``)."""
     times = {}
     spec, mesh, full, rig, rig_desc, cams = _geometry(args, times)
     t0 = time.perf_counter()
@@ -409,15 +425,13 @@ def run(args) -> int:
     del capture
     times["simulate_s"] = time.perf_counter() - t0
     metadata = _metadata(args, spec, full.resolution, rig_desc, sensor, sss_info)
-    if out.is_dir() and not any(out.iterdir()):
-        out.rmdir()  # an empty folder may be replaced by the capture
-    out.parent.mkdir(parents=True, exist_ok=True)  # --out is created, as in every command
     t0 = time.perf_counter()
-    write_capture(out, radiance, rig, cams, valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
-    _write_extras(out, mesh, cams, surface, full.resolution, radiance[0].sum(axis=0),
+    with writing(out):
+        write_capture(tmp, radiance, rig, cams, valid=valid, metadata=metadata, sample_shape=(H, W), half=args.half)
+    _write_extras(tmp, mesh, cams, surface, full.resolution, radiance[0].sum(axis=0),
                   material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), spec, sss_info)
     times["write_s"] = time.perf_counter() - t0
-    write_settings(out, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=rig.num_lights,
+    write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=rig.num_lights,
                    views=len(cams), samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info,
                    timings_s={k: round(v, 3) for k, v in times.items()})
     if not args.quiet:
@@ -437,7 +451,7 @@ def store_blocks(n_texels: int, block: int, channels: int, dtype) -> tuple[int, 
     return max(pc, (block // pc) * pc), pc
 
 
-def _run_store(args, out: Path, sensor, sss_source) -> int:
+def _run_store(args, out: Path, sensor, sss_source, tmp: Path) -> int:
     """The store form: stream the capture into a capture store block by block
     (module docstring). With --subsurface the operator couples every seen texel,
     so there is one block (the whole grid) and the light chunk is a store chunk's 8."""
@@ -465,30 +479,25 @@ def _run_store(args, out: Path, sensor, sss_source) -> int:
     if sss is not None:
         block = H * W
     metadata = _metadata(args, spec, (H, W), rig_desc, sensor, sss_info)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.{secrets.token_hex(6)}.building"
     t0 = time.perf_counter()
-    try:
-        with CaptureStoreWriter(tmp, (V, L, H * W, C), dtype, rig, cams, metadata, (1, 8, pc, C),
-                                sample_shape=(H, W)) as writer:
-            all_on, n_blocks, t_vis = _stream(writer, args, mesh, rig, cams, surface, cam_vis, (rho, f0, alpha),
-                                              truth, sss, sensor, block)
-        times["visibility_s"] = t_vis
-        times["simulate_s"] = time.perf_counter() - t0 - t_vis
-        memory["simulate"] = _peak_rss_mib()
-        _return_freed_memory()
-        t0 = time.perf_counter()
-        _write_extras(tmp, mesh, cams, surface, (H, W), all_on,
-                      material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), spec, sss_info)
-        times["write_s"] = time.perf_counter() - t0
-        memory["write"] = _peak_rss_mib()
-        write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=L, views=V,
-                       samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
-                       block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
-                       timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
-        swap_folder(tmp, out)  # out: a finished store or an empty folder (checked above)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    # The store is built at tmp; output_set swaps the whole folder (store, truth/, settings) in.
+    with CaptureStoreWriter(tmp, (V, L, H * W, C), dtype, rig, cams, metadata, (1, 8, pc, C),
+                            sample_shape=(H, W)) as writer:
+        all_on, n_blocks, t_vis = _stream(writer, args, mesh, rig, cams, surface, cam_vis, (rho, f0, alpha),
+                                          truth, sss, sensor, block)
+    times["visibility_s"] = t_vis
+    times["simulate_s"] = time.perf_counter() - t0 - t_vis
+    memory["simulate"] = _peak_rss_mib()
+    _return_freed_memory()
+    t0 = time.perf_counter()
+    _write_extras(tmp, mesh, cams, surface, (H, W), all_on,
+                  material_maps(surface, rho, f0, alpha, mfp=mfp, model=model), spec, sss_info)
+    times["write_s"] = time.perf_counter() - t0
+    memory["write"] = _peak_rss_mib()
+    write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=L, views=V,
+                   samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
+                   block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
+                   timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
     if not args.quiet:
         print(f"wrote {out} (capture store: {V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen, "
               f"{n_blocks} blocks of {block} texels)")
@@ -599,15 +608,12 @@ def _host_subset(host: dict, resolution, index) -> stage.Surface:
                          resolution=resolution)
 
 
-def _run_image(args, out: Path, sensor) -> int:
+def _run_image(args, out: Path, sensor, tmp: Path) -> int:
     """``--space image``: per camera, one sample per pixel (``stage.image_samples``),
     visibility, ``stage.simulate`` and the images [L, H, W, C] (0 off the
     mesh), written as a photo capture (``relight.io.write_photo_capture``) with
     each camera's mask (the pixels that see the mesh)."""
-    from ..io import is_photo_capture
 
-    if out.exists() and any(out.iterdir()) and not is_photo_capture(out):
-        raise CLIError(f"--out {out}: exists and is not a photo capture (or an empty folder); refusing to replace it")
     times = {}
     t0 = time.perf_counter()
     spec = mesh_from_args(args)
@@ -646,14 +652,15 @@ def _run_image(args, out: Path, sensor) -> int:
                 "material": "relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5)",
                 "units": {"lengths": "mm", "radiance": "relative to the rig's irradiance"},
                 "writer": "relight simulate --space image"}
-    out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    write_photo_capture(out, images, rig, cams, half=args.half, masks=masks, metadata=metadata)
+    with writing(out):
+        write_photo_capture(tmp, images, rig, cams, half=args.half, masks=masks, metadata=metadata)
     all_on = images[0].sum(axis=0)
-    write_exr(out / "preview_all_lights.exr", all_on)
-    write_preview(out / "preview_all_lights.png", all_on)
+    with writing(tmp / "preview_all_lights.exr"):
+        write_exr(tmp / "preview_all_lights.exr", all_on)
+    write_preview(tmp / "preview_all_lights.png", all_on)
     times["write_s"] = time.perf_counter() - t0
-    write_settings(out, "simulate", args, mesh=spec, rig=rig_desc, lights=rig.num_lights, views=len(cams),
+    write_settings(tmp, "simulate", args, mesh=spec, rig=rig_desc, lights=rig.num_lights, views=len(cams),
                    pixels_seen=[int(m.sum()) for m in masks], timings_s={k: round(v, 3) for k, v in times.items()})
     if not args.quiet:
         print(f"wrote {out}/ ({len(cams)} camera(s) x {rig.num_lights} lights, photo capture)")

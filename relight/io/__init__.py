@@ -45,6 +45,13 @@ from ._photos import read_photo_capture as read_photo_capture
 from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
+from ._resultset import FolderLockedError as FolderLockedError
+from ._resultset import ForeignFolderError as ForeignFolderError
+from ._resultset import NoSpaceError as NoSpaceError
+from ._resultset import ResultSetError as ResultSetError
+from ._resultset import WriteError as WriteError
+from ._resultset import open_result_set as open_result_set
+from ._resultset import result_set as result_set
 from ._store import CaptureStore as CaptureStore
 from ._store import CaptureStoreError as CaptureStoreError
 from ._store import CaptureStoreWriter as CaptureStoreWriter
@@ -94,6 +101,13 @@ __all__ = [
     "ExrPart",
     "HEAD_SKIN_FILES",
     "ImageFormatError",
+    "FolderLockedError",
+    "ForeignFolderError",
+    "NoSpaceError",
+    "ResultSetError",
+    "WriteError",
+    "open_result_set",
+    "result_set",
     "PhotoCapture",
     "PhotoTexelReport",
     "PhotoView",

@@ -64,6 +64,8 @@ from ._capture import _atomic_folder, _rig_light_count, open_capture
 from ._errors import ImageFormatError, check_radiance, path_inside
 from ._exr import write_exr_channels
 from ._json import jsonable, read_json, write_json
+from ._resultset import MANIFEST as RESULT_MANIFEST
+from ._resultset import open_result_set, swap_into
 
 __all__ = ["CaptureStore", "CaptureStoreError", "CaptureStoreWriter", "StoreChangedError", "capture_folder_to_store",
            "is_capture_store", "open_capture_store", "store_to_capture_folder", "write_capture_store"]
@@ -136,21 +138,12 @@ def _swap_in(tmp: Path, path: Path) -> None:
 
 
 def swap_folder(tmp: Path, path: Path) -> None:
-    """Rename the finished folder ``tmp`` to ``path``; an old folder there is
-    moved aside first and deleted after, so ``path`` holds the old set, then
-    nothing for a moment (readers see no set, not a mixed one), then the new
-    one. The caller decides what may be replaced."""
-    if not path.exists():
-        os.replace(tmp, path)
-        return
-    old = path.with_name(f".{path.name}.{secrets.token_hex(6)}.old")
-    os.replace(path, old)
-    try:
-        os.replace(tmp, path)
-    except BaseException:
-        os.replace(old, path)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+    """Rename the finished folder ``tmp`` to ``path``, replacing what is there:
+    ``relight.io._resultset.swap_into``, the one folder swap (an atomic
+    exchange where the OS has one; else the old folder moved aside first and
+    deleted after, so readers see the old set, then for a moment nothing,
+    then the new one, never a mix). The caller decides what may be replaced."""
+    swap_into(Path(tmp), Path(path))
 
 
 def _codecs(kind: str):
@@ -486,6 +479,11 @@ class CaptureStore:
         self.half = bool(info.get("half", self.dtype == np.float16))
         self.has_valid = bool(info.get("has_valid", True))
         self.metadata = dict(info.get("metadata") or {})
+        if (self.path / RESULT_MANIFEST).is_file():
+            # Inside a command's result set (relight simulate --out X.zarr): the manifest, rig and cameras must be
+            # the files that set committed (its manifest lists them; the chunks are this manifest's generation's).
+            rs = open_result_set(self.path)
+            rs.check([n for n in (MARKER, *(str(files.get(k)) for k in _FILES)) if n in rs.files])
         self._open_parts(arrays, files, where)
         self.chunks = tuple(int(c) for c in self._radiance.chunks)
 

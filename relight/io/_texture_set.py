@@ -35,9 +35,14 @@ tells fitted texels from padding.
 ``texture_set(maps, surface)`` builds the set in memory (a :class:`TextureSet`,
 what reading the files back gives); ``write_texture_set`` writes one and
 ``write_maps`` does both, building and writing one file's maps at a time (the
-same bytes, without the whole set in memory). Every file is written atomically
-(``relight.io.write_exr``); ``maps.json`` is written last. Reading validates everything and raises ``FileNotFoundError``
-or ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
+same bytes, without the whole set in memory). A set is written as a unit
+(``relight.io._resultset.result_set``: built in a temporary sibling folder,
+the result-set manifest ``relight-set.json`` with every file's SHA-256 last,
+then swapped into place; the folder is locked meanwhile). Reading validates
+everything and raises ``FileNotFoundError`` or ``ImageFormatError`` (a
+``ValueError``) naming the file and the problem; a set whose files do not all
+match its manifest (old and new files mixed by an interrupted writer, or an
+edit) is refused (``ResultSetError``).
 """
 
 from __future__ import annotations
@@ -55,8 +60,10 @@ from ..materials._maps import MODELS, MaterialMaps, material_maps
 from ._errors import ImageFormatError
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import jsonable, read_json, write_json
+from ._resultset import ResultSetError, open_result_set, result_set, writing
 
-__all__ = ["TextureSet", "is_map_set", "read_maps", "texture_set", "write_maps", "write_texture_set"]
+__all__ = ["TextureSet", "is_map_set", "read_maps", "texture_set", "write_maps", "write_texture_set",
+           "write_texture_set_files"]
 
 FORMAT = "relight-maps"
 VERSION = 1
@@ -283,21 +290,46 @@ def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
     return TextureSet(**fields, info=_info(surface, src.P, gutter, metadata, surface_info))
 
 
+# The result-set kind of a map set written by write_maps / write_texture_set (relight fit's is "fit").
+KIND = "maps"
+# Every file a reader takes: verified against the set's manifest.
+SET_FILES = ("maps.json", *(name for name, _ in FILES.values()))
+
+
 def _write_files(folder: Path, get, info: dict) -> Path:
     """Each file of FILES from ``get(field)`` (built per file and dropped before
-    the next), each atomically, then maps.json ``info`` last."""
+    the next), each atomically, then maps.json ``info`` last, into ``folder``
+    as it is (the caller makes it a unit)."""
     folder.mkdir(parents=True, exist_ok=True)
     for key, (name, _) in FILES.items():
-        write_exr_channels(folder / name, _file_channels(key, get), header={"relight.map": key})
-    write_json(folder / "maps.json", info)
+        with writing(folder / name):
+            write_exr_channels(folder / name, _file_channels(key, get), header={"relight.map": key})
+    with writing(folder / "maps.json"):
+        write_json(folder / "maps.json", info)
     return folder
+
+
+def _write_set(folder: Path, get, info: dict) -> Path:
+    # carry: a library caller may keep its own files beside the maps (a rig.json); they are carried into the set.
+    with result_set(folder, KIND, command="relight.io.write_maps", carry=True) as tmp:
+        _write_files(tmp, get, info)
+    return folder
+
+
+def write_texture_set_files(folder: str | os.PathLike, textures: TextureSet) -> Path:
+    """The files of :func:`write_texture_set` written into ``folder`` as it is
+    (no manifest, no swap): for a caller that builds a larger result set
+    around them (``relight fit``'s)."""
+    return _write_files(Path(folder), lambda field: getattr(textures, field), textures.info)
 
 
 def write_texture_set(folder: str | os.PathLike, textures: TextureSet) -> Path:
     """Write an in-memory :class:`TextureSet` (from :func:`texture_set`) to
-    ``folder`` in the layout of the module docstring: each file atomically,
-    maps.json (``textures.info``) last. Returns the folder."""
-    return _write_files(Path(folder), lambda field: getattr(textures, field), textures.info)
+    ``folder`` in the layout of the module docstring, as a unit: built in a
+    temporary sibling, manifest last, swapped in (an existing map set is
+    replaced; other files in ``folder`` are carried into the new set).
+    Returns the folder."""
+    return _write_set(Path(folder), lambda field: getattr(textures, field), textures.info)
 
 
 def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
@@ -309,8 +341,9 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
     texel with their float64 sources) rather than the whole set's.
 
     Args:
-        folder: created if missing; existing files of the set are replaced
-            (each atomically; maps.json last).
+        folder: created if missing; an existing map set there is replaced
+            as a unit (built beside it, swapped in); other files in it are
+            carried into the new set (and listed in its manifest).
         maps: :class:`relight.MaterialMaps` with one row per surface sample.
         surface: the ``stage.Surface`` the maps are over (texel grid, frame).
         metadata: JSON-able extras stored under maps.json ``metadata``.
@@ -324,7 +357,7 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
         src = _Maps(maps, surface, gutter)
     except ValueError as err:
         raise ValueError(f"{folder}: {err}") from None
-    return _write_files(Path(folder), src.get, _info(surface, src.P, gutter, metadata, surface_info))
+    return _write_set(Path(folder), src.get, _info(surface, src.P, gutter, metadata, surface_info))
 
 
 def _version() -> str:
@@ -346,11 +379,15 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
 
     Raises FileNotFoundError (folder, maps.json or a map missing) or
     ImageFormatError (corrupt EXR, missing channel, wrong resolution, bad
-    maps.json), each naming the file.
+    maps.json), each naming the file; ``ResultSetError`` (an ImageFormatError)
+    when the folder has no result-set manifest or a file differs from it (a
+    mix of two writes), checked after the content so that a damaged file is
+    named for what is wrong with it.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such map-set folder")
+    rs = _open_set(folder)  # opened first: the folder's identity then is what the files must still belong to
     meta_path = folder / "maps.json"
     info = read_json(meta_path, "a map-set folder needs maps.json and the EXR maps")
     fmt = info.get("format") if isinstance(info, dict) else None
@@ -404,4 +441,15 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         coverage=coverage,
         info=info,
     )
+    if isinstance(rs, ResultSetError):
+        raise rs
+    rs.check(SET_FILES)
     return tex, tex.surface_info
+
+
+def _open_set(folder: Path):
+    """The folder's result set, or the ResultSetError opening it gave (raised after the content checks)."""
+    try:
+        return open_result_set(folder)
+    except ResultSetError as err:
+        return err

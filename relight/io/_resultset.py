@@ -1,0 +1,642 @@
+"""Result sets: a command's output folder (a fit's map set with its report and
+previews, a render's images, a simulated capture folder or store) written as
+one unit, locked while it is written, and checked by every reader.
+
+Writing (:func:`result_set`): the set is built in a hidden temporary sibling
+``.NAME.<random>.tmp``; the manifest ``relight-set.json`` is written last (the
+completion marker); then the folder is swapped into place with one
+``renameat2(RENAME_EXCHANGE)`` (Linux; elsewhere two renames, the old set moved
+aside first, see :func:`relight.io._store.swap_folder`) and the old set is
+deleted. ``NAME`` therefore holds the complete old set or the complete new one
+at every instant (with the two-rename fallback: or, for a moment, nothing). A
+process killed at any point leaves ``NAME`` as it was, plus a stale sibling
+that the next writer of ``NAME`` deletes (holding the lock, it knows no live
+process owns it); an old set moved aside by the fallback and never replaced is
+put back.
+
+Manifest (format ``relight-result-set``, version 1)::
+
+    {"format": "relight-result-set", "version": 1, "kind": "fit",
+     "generation": "<32 hex>", "created": "<UTC ISO time>", "writer": {"pid": ..., "host": ...},
+     "files": {"albedo.exr": {"size": 1234, "sha256": "<64 hex>"}, ...},
+     "unhashed": ["radiance/", ...]}
+
+``files`` lists every regular file of the set (relative POSIX paths), except
+hidden top-level entries (``.parts``: a fit's resumable blocks, not part of
+the result) and the ``unhashed`` prefixes (a capture store's chunks, which
+its own manifest and generation id protect). A reader (:func:`open_result_set`)
+refuses a folder without the manifest, a file that is listed but missing or
+whose size or SHA-256 differ (old and new files mixed, or an edit), and a
+folder replaced while it was read (its inode changed).
+
+Locking (:class:`FolderLock`): ``.NAME.lock`` next to the folder (it must
+survive the swap), held with ``fcntl.flock`` for the whole command and
+holding ``{"pid", "host", "command", "started"}``. The kernel drops a flock
+when its process dies, even by SIGKILL, so a lock file left by a dead writer
+is stale by construction and is taken over; a second live writer fails at
+once with :class:`FolderLockedError` naming the folder and the holder's PID.
+
+Disk full: an ``OSError`` with ``ENOSPC`` / ``EDQUOT`` raised while a set is
+built becomes :class:`NoSpaceError`, naming the file (or the set) and saying
+"no space left on device"; nothing of the set is committed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import datetime
+import errno
+import hashlib
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+
+from ._atomic import _umask, atomic_write_text
+from ._errors import ImageFormatError
+
+__all__ = ["FolderLock", "FolderLockedError", "ForeignFolderError", "NoSpaceError", "ResultSet", "ResultSetError",
+           "check_output_folder", "clean_stale", "is_result_set", "open_result_set", "result_set", "swap_into",
+           "writing", "write_manifest"]
+
+FORMAT = "relight-result-set"
+VERSION = 1
+MANIFEST = "relight-set.json"
+# Test hook (tests/relight/test_kill.py): SIGKILL this process at the named commit point of a result set
+# ("built": files written, no manifest; "manifest": manifest written, not swapped; "moved": the fallback's old
+# set moved aside, the new one not yet in; "swapped": swapped in, the old set not yet deleted; relight fit's
+# "block": its first block written to OUT/.parts).
+KILL_ENV = "RELIGHT_TEST_KILL_AT"
+# Test hook: use the two-rename swap even where the OS can exchange two folders atomically.
+NO_EXCHANGE_ENV = "RELIGHT_TEST_NO_EXCHANGE"
+_HASH_BLOCK = 1 << 20
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+class ResultSetError(ImageFormatError):
+    """A folder that is not a complete, consistent result set: no manifest (an
+    interrupted write, or not written by relight), a listed file missing or
+    changed (a mix of two writes), or a folder replaced while it was read."""
+
+
+class _Named:
+    """str() is the message alone: an OSError with ``errno`` / ``filename`` set would print
+    ``[Errno N] strerror: 'file'`` instead."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class FolderLockedError(_Named, OSError):
+    """Another live process is writing the output folder."""
+
+
+class ForeignFolderError(_Named, FileExistsError):
+    """The output folder exists and is not a result set of the command's own kind."""
+
+
+class NoSpaceError(_Named, OSError):
+    """The disk (or quota) filled up while a file was written."""
+
+
+class WriteError(_Named, OSError):
+    """A file could not be written (an encoder's failure), naming the file."""
+
+
+def _err(cls, code: int, msg: str, filename) -> OSError:
+    """An OSError subclass whose str() is ``msg`` alone (the three-argument form prints ``[Errno N] ...: 'file'``),
+    with ``errno`` and ``filename`` set."""
+    e = cls(msg)
+    e.errno, e.filename = code, str(filename)  # str() stays msg: the classes are _Named
+    return e
+
+
+def kill_point(name: str) -> None:
+    """The test hook: SIGKILL this process if ``$RELIGHT_TEST_KILL_AT`` is ``name`` (a no-op otherwise)."""
+    if os.environ.get(KILL_ENV) == name:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _folder_mode() -> int:
+    """What a plain ``mkdir`` gives: 0o777 less the umask (``mkdtemp``'s 0o700 is not what a user expects)."""
+    return 0o777 & ~_umask()
+
+
+def no_space_error(err: OSError, where: str | os.PathLike, exact: bool = False) -> OSError:
+    """``err`` as a :class:`NoSpaceError` naming its file (else, or with ``exact``, ``where``) when it is
+    ENOSPC / EDQUOT, else ``err``."""
+    if getattr(err, "errno", None) not in _NO_SPACE or isinstance(err, NoSpaceError):
+        return err
+    name = where if exact or not err.filename else err.filename
+    return _err(NoSpaceError, err.errno, f"{name}: no space left on device (nothing was committed; free some space "
+                                         "and run again)", name)
+
+
+@contextlib.contextmanager
+def writing(path: str | os.PathLike) -> Iterator[None]:
+    """Name ``path`` in the failure of a write: ENOSPC / EDQUOT become
+    :class:`NoSpaceError` ("PATH: no space left on device"), and an encoder's
+    RuntimeError (OpenEXR's bindings raise one when the disk fills) a
+    NoSpaceError when the file system has no free block left, else an OSError
+    naming ``path``."""
+    try:
+        yield
+    except OSError as err:
+        named = no_space_error(err, path, exact=True)  # the file meant, not the writer's temporary name
+        if named is err:
+            raise
+        raise named from err
+    except RuntimeError as err:
+        folder = Path(path).parent
+        try:
+            full = os.statvfs(folder if str(folder) else ".").f_bavail == 0
+        except OSError:
+            full = False
+        if full:
+            raise no_space_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), path) from err
+        raise _err(WriteError, errno.EIO, f"{path}: cannot write ({err})", path) from err
+
+
+# ------------------------------------------------------------------ locking
+
+
+def _lock_path(folder: Path) -> Path:
+    return folder.parent / f".{folder.name}.lock"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+class FolderLock:
+    """An exclusive lock on writing ``folder`` (module docstring, "Locking"); a
+    context manager. ``command`` is recorded for the error a second writer gets.
+    Raises :class:`FolderLockedError` naming the folder when a live process holds it."""
+
+    def __init__(self, folder: str | os.PathLike, command: str = "relight"):
+        self.folder = Path(folder)
+        self.path = _lock_path(self.folder)
+        self.command = command
+        self._fd: int | None = None
+
+    def acquire(self) -> FolderLock:
+        import fcntl
+
+        parent = self.path.parent if str(self.path.parent) else Path(".")
+        if not parent.is_dir():
+            raise FileNotFoundError(f"{self.folder}: cannot write, folder {parent} does not exist")
+        for _ in range(20):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _read_holder(fd)
+                os.close(fd)
+                raise _err(FolderLockedError, errno.EBUSY,
+                           f"{self.folder}: being written by another relight process ({holder}); wait for it to "
+                           f"finish or stop it (its lock: {self.path})", self.folder) from None
+            except OSError as err:  # no flock here (some network file systems): the PID decides
+                if not _take_by_pid(fd, self.folder, self.path, err):
+                    continue
+            # Whoever held it may have unlinked the file between our open and flock: lock the file on disk.
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(fd)
+                continue
+            doc = {"pid": os.getpid(), "host": socket.gethostname(), "command": self.command,
+                   "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, json.dumps(doc).encode(), 0)
+            self._fd = fd
+            return self
+        raise _err(FolderLockedError, errno.EBUSY, f"{self.folder}: could not take its lock {self.path}", self.folder)
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.path)  # before the close: a waiter re-checks the inode and retries
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> FolderLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def _read_holder(fd: int) -> str:
+    try:
+        doc = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+        return f"pid {doc['pid']} on {doc.get('host', '?')}, `{doc.get('command', 'relight')}` since {doc['started']}"
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        return "pid unknown"
+
+
+def _take_by_pid(fd: int, folder: Path, path: Path, err: OSError) -> bool:
+    """Without flock: refuse if the recorded PID (on this host) is alive, else take the stale lock over."""
+    try:
+        doc = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+    except (ValueError, UnicodeDecodeError):
+        doc = {}
+    pid = doc.get("pid")
+    if isinstance(pid, int) and pid != os.getpid() and doc.get("host") == socket.gethostname() and _pid_alive(pid):
+        os.close(fd)
+        raise _err(FolderLockedError, errno.EBUSY, f"{folder}: being written by another relight process (pid {pid}); "
+                                                   f"wait for it to finish or stop it (its lock: {path}; flock: {err})",
+                   folder) from None
+    return True
+
+
+# ------------------------------------------------------------------ the manifest
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(_HASH_BLOCK):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _set_files(folder: Path, unhashed: Sequence[str]) -> Iterator[str]:
+    """Relative POSIX paths of the set's regular files: not the manifest, not hidden top-level entries, not
+    under an ``unhashed`` prefix."""
+    for root, dirs, files in os.walk(folder):
+        rel_root = Path(root).relative_to(folder)
+        if rel_root == Path("."):
+            dirs[:] = [d for d in dirs if not d.startswith(".")]
+            files = [f for f in files if not f.startswith(".") and f != MANIFEST]
+        dirs.sort()
+        for f in sorted(files):
+            rel = (rel_root / f).as_posix()
+            if any(rel == u.rstrip("/") or rel.startswith(u if u.endswith("/") else u + "/") for u in unhashed):
+                continue
+            if (Path(root) / f).is_file() and not (Path(root) / f).is_symlink():
+                yield rel
+
+
+def write_manifest(folder: str | os.PathLike, kind: str, unhashed: Sequence[str] = (), **extra) -> dict:
+    """Hash every file of the set in ``folder`` and write ``relight-set.json``
+    (module docstring) atomically; ``extra`` (JSON-able) is stored as it is.
+    Returns the manifest."""
+    folder = Path(folder)
+    files = {rel: {"size": (folder / rel).stat().st_size, "sha256": _sha256(folder / rel)}
+             for rel in _set_files(folder, unhashed)}
+    doc = {"format": FORMAT, "version": VERSION, "kind": str(kind), "generation": secrets.token_hex(16),
+           "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+           "writer": {"pid": os.getpid(), "host": socket.gethostname()},
+           "files": files, "unhashed": list(unhashed), **extra}
+    atomic_write_text(folder / MANIFEST, json.dumps(doc, indent=1) + "\n")
+    return doc
+
+
+def is_result_set(folder: str | os.PathLike, kind: str | None = None) -> bool:
+    """Whether ``folder`` holds a result-set manifest (of ``kind``, if given); the files are not checked."""
+    p = Path(folder) / MANIFEST
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == FORMAT and (kind is None or doc.get("kind") == kind)
+
+
+class ResultSet:
+    """An opened result set (:func:`open_result_set`): ``folder``, ``kind``,
+    ``generation``, ``files`` (the manifest's table) and the folder's inode.
+    :meth:`check` verifies files against the manifest; :meth:`unchanged`
+    that the folder was not swapped since it was opened."""
+
+    def __init__(self, folder: Path, doc: dict, ino: int):
+        self.folder, self.manifest, self._ino = folder, doc, ino
+        self.kind = str(doc.get("kind"))
+        self.generation = str(doc.get("generation"))
+        self.files: dict = dict(doc.get("files") or {})
+
+    def check(self, names: Iterable[str | os.PathLike] | None = None) -> None:
+        """Verify ``names`` (paths relative to the folder, or inside it; default: every listed file): each must
+        be listed, present, and of the listed size and SHA-256. ResultSetError naming the file otherwise."""
+        rels = list(self.files) if names is None else [self._rel(n) for n in names]
+        for rel in rels:
+            path = self.folder / rel
+            want = self.files.get(rel)
+            if want is None:
+                raise ResultSetError(f"{path}: not listed in {self.folder / MANIFEST}: written by another run than "
+                                     "the rest of the set (or added by hand); rerun the command that made it")
+            try:
+                size = path.stat().st_size
+            except FileNotFoundError:
+                raise ResultSetError(f"{path}: listed in {self.folder / MANIFEST} but missing: an incomplete set"
+                                     ) from None
+            if size != want.get("size") or _sha256(path) != want.get("sha256"):
+                raise ResultSetError(f"{path}: differs from the file {self.folder / MANIFEST} lists (size or "
+                                     "SHA-256): old and new files mixed, or an edit; rerun the command that made it")
+        self.unchanged()
+
+    def unchanged(self) -> None:
+        """ResultSetError if the folder was replaced (swapped) since it was opened."""
+        try:
+            ino = os.stat(self.folder).st_ino
+        except FileNotFoundError:
+            ino = None
+        if ino != self._ino:
+            raise ResultSetError(f"{self.folder}: replaced while it was read; read it again")
+
+    def _rel(self, name) -> str:
+        p = Path(name)
+        if p.is_absolute() or str(p).startswith(str(self.folder)):
+            with contextlib.suppress(ValueError):
+                p = p.relative_to(self.folder)
+        return p.as_posix()
+
+
+def open_result_set(folder: str | os.PathLike, kind: str | Sequence[str] | None = None) -> ResultSet:
+    """Open the result set in ``folder``: its manifest read and checked
+    (format, version, ``kind`` if given); the files are verified on demand
+    (:meth:`ResultSet.check`). Raises FileNotFoundError for a missing folder
+    and :class:`ResultSetError` (an ImageFormatError) naming the folder."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder")
+    ino = os.stat(folder).st_ino
+    path = folder / MANIFEST
+    if not path.is_file():
+        raise ResultSetError(f"{folder}: no {MANIFEST}, so not a complete result set (an interrupted write, or not "
+                             "written by this version of relight); rerun the command that made it")
+    try:
+        doc = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as err:
+        raise ResultSetError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ResultSetError(f"{path}: not a relight result-set manifest")
+    if int(doc.get("version", 0)) > VERSION:
+        raise ResultSetError(f"{path}: version {doc.get('version')} is newer than this reader ({VERSION})")
+    if not isinstance(doc.get("files"), dict):
+        raise ResultSetError(f"{path}: field 'files' must be a table")
+    kinds = (kind,) if isinstance(kind, str) else tuple(kind or ())
+    if kinds and doc.get("kind") not in kinds:
+        raise ResultSetError(f"{folder}: a {doc.get('kind')!r} result set, expected {' or '.join(kinds)}")
+    return ResultSet(folder, doc, ino)
+
+
+# ------------------------------------------------------------------ output folders
+
+# What a foreign folder looks like, for the refusal message: a marker file -> its description.
+_MARKERS = (("capture.json", "a capture folder"), ("relight-store.json", "a capture store"),
+            ("maps.json", "a map set"), ("zarr.json", "a Zarr store"))
+
+
+def describe_folder(folder: Path) -> str:
+    """A short description of what ``folder`` holds (for refusals)."""
+    by = ""
+    if is_result_set(folder):
+        by = f", written by `relight {json.loads((folder / MANIFEST).read_text()).get('kind')}`"
+    for name, what in _MARKERS:
+        if (folder / name).is_file():
+            return f"{what} ({name}{by})"
+    if by:
+        return f"a relight result set{by}"
+    names = sorted(p.name for p in folder.iterdir())
+    return f"{len(names)} entries: {', '.join(names[:5])}{', ...' if len(names) > 5 else ''}"
+
+
+def check_output_folder(folder: str | os.PathLike, kind: str, accept: Sequence[str] = (),
+                        keep: Sequence[str] = (), legacy=None) -> None:
+    """Refuse ``folder`` as the output of a ``kind`` command unless it is
+    absent, empty, a result set of ``kind`` (or of a kind in ``accept``),
+    holds only the hidden entries ``keep`` (a fit's ``.parts``), or passes
+    ``legacy(folder)`` (a set of this kind written before manifests). Raises
+    :class:`ForeignFolderError` naming the folder and what it holds."""
+    folder = Path(folder)
+    if not (folder.exists() or folder.is_symlink()):
+        return
+    if not folder.is_dir() or folder.is_symlink():
+        raise _err(ForeignFolderError, errno.EEXIST, f"{folder}: exists and is not a folder; refusing to replace it",
+                   folder)
+    entries = [p.name for p in folder.iterdir()]
+    if all(e in keep for e in entries):
+        return
+    if is_result_set(folder, kind) or any(is_result_set(folder, k) for k in accept):
+        return
+    if legacy is not None and not is_result_set(folder) and legacy(folder):
+        return
+    raise _err(ForeignFolderError, errno.EEXIST,
+               f"{folder}: exists and is {describe_folder(folder)}, not the output of an earlier `relight {kind}`; "
+               "refusing to write into it (choose another --out, or move it away)", folder)
+
+
+def _stale_names(folder: Path) -> list[Path]:
+    """Siblings a killed writer of ``folder`` leaves: ``.NAME.*.tmp`` / ``.old`` / ``.building`` (and the
+    ``..NAME.*`` of a nested folder writer)."""
+    parent = folder.parent if str(folder.parent) else Path(".")
+    out = []
+    for p in parent.iterdir():
+        n = p.name
+        if not (n.startswith(f".{folder.name}.") or n.startswith(f"..{folder.name}.")) or n == _lock_path(folder).name:
+            continue
+        if ".tmp" in n or n.endswith((".old", ".building")):
+            out.append(p)
+    return sorted(out)
+
+
+def clean_stale(folder: str | os.PathLike) -> list[Path]:
+    """Delete what killed writers of ``folder`` left next to it (call with the
+    folder's lock held, so no live writer owns them). If ``folder`` is absent
+    and a complete old set was moved aside by the two-rename swap, it is put
+    back first. Returns the paths deleted (or restored)."""
+    folder = Path(folder)
+    stale = _stale_names(folder)
+    done = []
+    if not folder.exists():
+        for p in stale:
+            if p.name.endswith(".old") and p.is_dir():
+                cand = p / "set" if (p / "set").is_dir() else p
+                if is_result_set(cand) or (cand / "relight-store.json").is_file() or (cand / "capture.json").is_file():
+                    os.replace(cand, folder)
+                    done.append(p)
+                    break
+    for p in stale:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+        if p not in done:
+            done.append(p)
+    return done
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` atomically (Linux renameat2 RENAME_EXCHANGE); False where unsupported (or when
+    the test hook ``RELIGHT_TEST_NO_EXCHANGE`` is set, to exercise the two-rename fallback)."""
+    if os.environ.get(NO_EXCHANGE_ENV):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def swap_into(tmp: Path, folder: Path) -> None:
+    """Put the finished folder ``tmp`` at ``folder``, replacing what is there
+    (the caller has checked that it may): one atomic exchange where the OS has
+    it, else the old folder moved aside (``.NAME.<random>.old/set``), the new
+    one renamed in, the old one deleted. The hidden entries of the old folder
+    that the new one lacks are not carried over (see :func:`result_set`'s ``keep``)."""
+    if not (folder.exists() or folder.is_symlink()):
+        os.replace(tmp, folder)
+        kill_point("swapped")
+        return
+    if _exchange(tmp, folder):
+        kill_point("swapped")
+        shutil.rmtree(tmp, ignore_errors=True)  # now the old set
+        return
+    aside = folder.parent / f".{folder.name}.{secrets.token_hex(6)}.old"
+    aside.mkdir()
+    os.replace(folder, aside / "set")
+    kill_point("moved")
+    try:
+        os.replace(tmp, folder)
+    except BaseException:
+        os.replace(aside / "set", folder)
+        raise
+    kill_point("swapped")
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def _carry_over(folder: Path, tmp: Path, keep: Sequence[str]) -> None:
+    """Hard-link (else copy) the entries of ``folder`` that ``tmp`` lacks into ``tmp`` (not the manifest, not
+    ``keep``, which is moved later)."""
+    if not folder.is_dir():
+        return
+    for src in folder.iterdir():
+        dst = tmp / src.name
+        if src.name == MANIFEST or src.name in keep or dst.exists() or dst.is_symlink():
+            continue
+        if src.is_symlink():
+            os.symlink(os.readlink(src), dst)
+        elif src.is_dir():
+            shutil.copytree(src, dst, symlinks=True, copy_function=_link_or_copy)
+        else:
+            _link_or_copy(str(src), str(dst))
+
+
+def _named_in(err: OSError, tmp: Path, folder: Path) -> OSError:
+    """A full disk while the set at ``tmp`` was built, named where the file was going to be (in ``folder``)."""
+    named = no_space_error(err, folder)
+    if isinstance(named, NoSpaceError) and str(tmp) in str(named):
+        named = _err(NoSpaceError, named.errno, str(named).replace(str(tmp), str(folder)),
+                     str(named.filename).replace(str(tmp), str(folder)))
+    return named
+
+
+def _commit(tmp: Path, folder: Path, keep: Sequence[str]) -> None:
+    """The finished set at ``tmp`` (manifest written): the umask's mode, ``keep`` moved over, swapped in."""
+    os.chmod(tmp, _folder_mode())
+    kill_point("manifest")
+    for name in keep:
+        src = folder / name
+        if src.exists() and not (tmp / name).exists():
+            os.replace(src, tmp / name)
+    swap_into(tmp, folder)
+
+
+@contextlib.contextmanager
+def result_set(folder: str | os.PathLike, kind: str, *, command: str | None = None, accept: Sequence[str] = (),
+               keep: Sequence[str] = (), create: bool = True, unhashed: Sequence[str] = (),
+               lock: bool = True, legacy=None, carry: bool = False, on_stale=None) -> Iterator[Path]:
+    """Write a result set of ``kind`` at ``folder`` as a unit (module docstring).
+
+    Takes ``folder``'s lock (:class:`FolderLock`), refuses a folder that is
+    not of this kind (:func:`check_output_folder` with ``accept`` / ``keep`` /
+    ``legacy``),
+    deletes what killed writers left (:func:`clean_stale`; ``on_stale(paths)``
+    is told), and yields the temporary folder to build the set in (created
+    unless ``create=False``: then the body creates it, e.g. by a folder
+    writer that renames its own result to that name). On a normal exit the
+    manifest is written (:func:`write_manifest`, ``unhashed`` prefixes not
+    hashed), the hidden entries ``keep`` of the old folder are moved into the
+    new one, the folder mode set to 0o777 less the umask, and the set swapped in;
+    on an exception the temporary folder is deleted and ``folder`` is left as
+    it was (ENOSPC becomes :class:`NoSpaceError` naming the file).
+
+    ``carry=True`` (a library writer that adds its files to a user's folder,
+    e.g. ``write_maps`` into a folder holding a rig.json): any folder is
+    taken, and the entries of the old folder that the new set does not write
+    are hard-linked (copied where links fail) into it before the manifest, so
+    they survive the swap and are listed; the originals stay in place until
+    the swap, so a killed run loses nothing.
+    """
+    folder = Path(folder)
+    parent = folder.parent if str(folder.parent) else Path(".")
+    if not parent.is_dir():
+        parent.mkdir(parents=True, exist_ok=True)
+    holder = FolderLock(folder, command or f"relight {kind}") if lock else None
+    if holder is not None:
+        holder.acquire()
+    try:
+        if not carry:
+            check_output_folder(folder, kind, accept, keep, legacy)
+        elif folder.exists() and not folder.is_dir():
+            raise _err(ForeignFolderError, errno.EEXIST, f"{folder}: exists and is not a folder", folder)
+        stale = clean_stale(folder)
+        if stale and on_stale is not None:
+            on_stale(stale)
+        tmp = parent / f".{folder.name}.{secrets.token_hex(6)}.tmp"
+        if create:
+            tmp.mkdir()
+        try:
+            try:
+                yield tmp
+                if not tmp.is_dir():
+                    raise FileNotFoundError(f"{folder}: the result set was not built (no {tmp})")
+                if carry:
+                    _carry_over(folder, tmp, keep)
+                kill_point("built")
+                write_manifest(tmp, kind, unhashed)
+            except OSError as err:
+                named = _named_in(err, tmp, folder)
+                if named is err:
+                    raise
+                raise named from err.__cause__ or err
+            _commit(tmp, folder, keep)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    finally:
+        if holder is not None:
+            holder.release()
