@@ -34,6 +34,7 @@ from jaxtyping import Array, ArrayLike, Float
 from brdf import atomic_write_text, safe_div, safe_normalize
 
 from ._files import read_json
+from ._mesh import MAX_COORDINATE_MM
 
 
 class Camera(eqx.Module):
@@ -55,6 +56,15 @@ class Camera(eqx.Module):
                              f"got {self.K.shape}, {self.R.shape}, {self.t.shape}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"Camera resolution must be positive, got {self.width}x{self.height}")
+        if self.width * self.height > MAX_CAMERA_PIXELS:
+            raise ValueError(f"Camera resolution {self.width}x{self.height} is above the limit of "
+                             f"{MAX_CAMERA_PIXELS} pixels (stage.MAX_CAMERA_PIXELS)")
+        try:  # the focal lengths, when K is a concrete array (not a tracer inside jit / vmap)
+            fx, fy = float(self.K[0, 0]), float(self.K[1, 1])
+        except jax.errors.ConcretizationTypeError:
+            return
+        if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
+            raise ValueError(f"Camera argument 'K': focal lengths fx = {fx}, fy = {fy} must be positive and finite")
 
     @property
     def center(self) -> Float[Array, " 3"]:
@@ -185,6 +195,11 @@ def camera_ring(n: int, radius: float, elevation_mm: float = 0.0, target=(0.0, 0
     return tuple(look_at(e, tgt, fov_deg=fov_deg, width=width, height=height) for e in eyes)
 
 
+# The largest image a camera may declare: 2^28 pixels (16384 x 16384), relight.io's MAX_IMAGE_PIXELS for
+# the same reason: a cameras.json saying 100000 x 100000 is refused here, before an image of that size is
+# allocated by a renderer or a photo reader.
+MAX_CAMERA_PIXELS = 2**28
+
 CONVENTION = "opencv"
 UNITS = "mm"
 MODELS = ("pinhole", "orthographic")
@@ -192,6 +207,7 @@ MODELS = ("pinhole", "orthographic")
 # are orthonormal to ~1e-7, so 1e-4 admits them and refuses a scaled or
 # sheared matrix.
 _ROTATION_TOL = 1e-4
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def camera_to_dict(camera: Camera, name: str | None = None) -> dict:
@@ -209,9 +225,10 @@ def camera_from_dict(doc: object, where: str = "camera") -> Camera:
     """A camera from its dict (``camera_to_dict``'s schema; the ``convention`` /
     ``units`` / ``name`` keys optional). Raises ValueError starting with
     ``where`` (e.g. ``"cameras.json: camera 2"``) and naming the field when one
-    is missing or malformed: K, R, t must be finite with shapes 3x3, 3x3, 3; R a
-    rotation to 1e-4; width and height positive integers; model pinhole or
-    orthographic."""
+    is missing or malformed: K, R, t must be finite with shapes 3x3, 3x3, 3; K
+    upper triangular with positive focal lengths and last row [0, 0, 1]; R a
+    rotation to 1e-4; width and height positive integers, width x height at
+    most ``MAX_CAMERA_PIXELS``; model pinhole or orthographic."""
     if not isinstance(doc, Mapping):
         raise ValueError(f"{where}: expected a JSON object, got {type(doc).__name__}")
     try:
@@ -221,15 +238,27 @@ def camera_from_dict(doc: object, where: str = "camera") -> Camera:
         raise ValueError(f"{where}: missing field {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: malformed field ({exc})") from None
-    for name, a, shp in (("K", K, (3, 3)), ("R", R, (3, 3)), ("t", t, (3,))):
-        if a.shape != shp or not np.all(np.isfinite(a)):
-            raise ValueError(f"{where}: field {name!r} must be finite with shape {shp}, got {a.shape}")
-    if np.abs(R @ R.T - np.eye(3)).max() > _ROTATION_TOL or np.linalg.det(R) < 0:
-        raise ValueError(f"{where}: field 'R' is not a rotation matrix")
+    # Finite as the camera's float32 too; a rotation's entries are within [-1, 1] (checked before R R^T,
+    # which would overflow), a translation within MAX_COORDINATE_MM.
+    for name, a, shp, top in (("K", K, (3, 3), _FLOAT32_MAX), ("R", R, (3, 3), _FLOAT32_MAX),
+                              ("t", t, (3,), MAX_COORDINATE_MM)):
+        if a.shape != shp or not np.all(np.abs(a) <= top):
+            raise ValueError(f"{where}: field {name!r} must be finite with shape {shp} and entries within "
+                             f"{top:.4g}, got shape {a.shape}")
+    if (np.abs(R).max() > 1.0 + _ROTATION_TOL or np.abs(R @ R.T - np.eye(3)).max() > _ROTATION_TOL
+            or np.linalg.det(R) < 0):
+        raise ValueError(f"{where}: field 'R' is not a rotation matrix (R R^T = I to {_ROTATION_TOL}, det +1)")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"{where}: field 'K' needs positive focal lengths, got fx = {K[0, 0]}, fy = {K[1, 1]}")
+    if np.any(K[[1, 2, 2], [0, 0, 1]] != 0) or K[2, 2] != 1:
+        raise ValueError(f"{where}: field 'K' must be upper triangular with K[2] = [0, 0, 1], got {K.tolist()}")
     for name, v in (("width", w), ("height", h)):
         number = not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
-        if not (number and np.isfinite(v) and v == int(v) and v > 0):
+        if not (number and abs(v) < 2**62 and v == int(v) and v > 0):
             raise ValueError(f"{where}: field {name!r} must be a positive integer, got {v!r}")
+    if int(w) * int(h) > MAX_CAMERA_PIXELS:
+        raise ValueError(f"{where}: image size {int(w)}x{int(h)} is above the limit of {MAX_CAMERA_PIXELS} "
+                         "pixels (stage.MAX_CAMERA_PIXELS)")
     model = doc.get("model", "pinhole")
     if model not in MODELS:
         raise ValueError(f"{where}: field 'model' must be 'pinhole' or 'orthographic', got {model!r}")

@@ -13,6 +13,11 @@ import trimesh
 # crown-to-neck height at ~20 cm, an adult head.
 HEAD_SCALE_MM = 25.0
 
+# The largest coordinate (mm, after ``scale``) load_mesh accepts: 1000 km, far beyond any stage, and small
+# enough that squares (1e18: areas, squared distances) and cubes (1e27) stay well inside float32's 3.4e38.
+# A mesh in the wrong unit by 1e35 would otherwise give Inf areas and NaN normals deep inside sampling.
+MAX_COORDINATE_MM = 1e9
+
 
 @dataclasses.dataclass(frozen=True)
 class Mesh:
@@ -36,31 +41,30 @@ def load_mesh(path, scale: float = 1.0, center: bool = False, require_uv: bool =
     (to mm), optionally move its bounding-box centre to the origin.
 
     Normals missing from the file are computed (area-weighted); degenerate
-    (zero-area) faces are dropped. Raises ValueError naming the file when it has
-    no triangles, or no UVs while ``require_uv``.
+    (zero-area) faces are dropped. Raises ValueError naming the file when it is
+    not a readable mesh, has no triangles, a face index out of range, a NaN /
+    Inf vertex or UV, a coordinate beyond ``MAX_COORDINATE_MM`` (after
+    ``scale``), or no UVs while ``require_uv``.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
-    try:
-        loaded = trimesh.load(str(path), process=False)
-    except Exception as exc:  # trimesh raises many types for bad files
-        raise ValueError(f"{path}: not a readable mesh ({exc})") from exc
-    if isinstance(loaded, trimesh.Scene):
-        if not loaded.geometry:
-            raise ValueError(f"{path}: the file holds no geometry")
-        loaded = loaded.to_geometry()
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise ValueError(f"{path}: no triangles found")
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"load_mesh: argument 'scale' must be positive and finite, got {scale!r}")
+    loaded = _load(path)
     uv = getattr(loaded.visual, "uv", None)
     if uv is not None and len(uv) != len(loaded.vertices):
         uv = None
     if require_uv and uv is None:
         raise ValueError(f"{path}: mesh has no UV coordinates, which texel-space sampling needs")
-    verts = np.asarray(loaded.vertices, dtype=np.float64) * float(scale)
+    verts, faces = _checked_geometry(loaded, float(scale), path)
+    if uv is not None:
+        uv = np.asarray(uv, dtype=np.float64)
+        bad = np.nonzero(~np.all(np.isfinite(uv), axis=1))[0]
+        if len(bad):
+            raise ValueError(f"{path}: {len(bad)} UV coordinate(s) are NaN or Inf (first: vertex {int(bad[0])})")
     if center:
         verts = verts - 0.5 * (verts.min(0) + verts.max(0))
-    faces = np.asarray(loaded.faces, dtype=np.int64)
     e1, e2 = verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     dropped = np.nonzero(~(area2 > 0))[0]
@@ -70,13 +74,50 @@ def load_mesh(path, scale: float = 1.0, center: bool = False, require_uv: bool =
     # trimesh returns the file's normals when it has them, else area-weighted ones.
     normals = np.asarray(loaded.vertex_normals, dtype=np.float64)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
-    if normals.shape != verts.shape or np.any(length < 1e-12):
+    if normals.shape != verts.shape or not np.all((length >= 1e-12) & np.isfinite(length)):  # zero, NaN, Inf
         normals = np.asarray(trimesh.Trimesh(verts, faces, process=False).vertex_normals, dtype=np.float64)
         length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = normals / np.maximum(length, 1e-12)
-    return Mesh(vertices=verts, faces=faces, normals=normals,
-                uv=None if uv is None else np.asarray(uv, dtype=np.float64), name=path.stem,
-                dropped_faces=dropped)
+    return Mesh(vertices=verts, faces=faces, normals=normals, uv=uv, name=path.stem, dropped_faces=dropped)
+
+
+def _load(path: Path) -> trimesh.Trimesh:
+    """The file's triangles as one Trimesh (ValueError naming the file otherwise)."""
+    try:
+        loaded = trimesh.load(str(path), process=False)
+        if isinstance(loaded, trimesh.Scene):
+            if not loaded.geometry:
+                raise ValueError(f"{path}: the file holds no geometry")
+            loaded = loaded.to_geometry()
+    except MemoryError:
+        raise
+    except Exception as exc:  # trimesh raises many types for bad files (and names none of them)
+        if isinstance(exc, ValueError) and str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable mesh ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f"{path}: no triangles found")
+    return loaded
+
+
+def _checked_geometry(loaded: trimesh.Trimesh, scale: float, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [N, 3] mm, faces [F, 3] int64), refusing what would poison sampling: a face index
+    outside the vertices, a NaN / Inf vertex, a coordinate beyond MAX_COORDINATE_MM."""
+    verts = np.asarray(loaded.vertices, dtype=np.float64)
+    faces = np.asarray(loaded.faces, dtype=np.int64)
+    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
+        raise ValueError(f"{path}: vertex positions must be [N, 3] with N >= 1, got shape {verts.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or np.any((faces < 0) | (faces >= len(verts))):
+        raise ValueError(f"{path}: face indices must be triangles of vertices 0..{len(verts) - 1}")
+    bad = np.nonzero(~np.all(np.isfinite(verts), axis=1))[0]
+    if len(bad):
+        raise ValueError(f"{path}: {len(bad)} vertex position(s) are NaN or Inf (first: vertex {int(bad[0])})")
+    verts = verts * scale
+    top = float(np.abs(verts).max(initial=0.0))
+    if top > MAX_COORDINATE_MM:
+        raise ValueError(f"{path}: a vertex coordinate is {top:.3g} mm (after scale {scale:g}), beyond the "
+                         f"limit of {MAX_COORDINATE_MM:.0e} mm (stage.MAX_COORDINATE_MM): wrong units?")
+    return verts, faces
 
 
 def head_mesh_path() -> Path:

@@ -25,6 +25,9 @@ from brdf import safe_normalize
 
 from ._files import read_light_table
 from ._forward import incident_light
+from ._mesh import MAX_COORDINATE_MM
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 # Two lights closer than this (as directions from the centre) cannot be told
 # apart by a Voronoi partition; scipy's construction also breaks down there.
@@ -143,25 +146,30 @@ def make_rig(position, intensity=1.0, near_field: bool = True, channels: int = 3
     """
     pos = np.asarray(position, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[1] != 3:
-        raise ValueError(f"light positions must have shape [L, 3], got {pos.shape}")
+        raise ValueError(f"make_rig: argument 'position': light positions must have shape [L, 3], got {pos.shape}")
     if pos.shape[0] == 0:
-        raise ValueError("a rig needs at least one light; got none")
+        raise ValueError("make_rig: argument 'position': a rig needs at least one light; got none")
     if not np.all(np.isfinite(pos)):
-        raise ValueError("light positions contain NaN or Inf")
+        raise ValueError("make_rig: argument 'position': light positions contain NaN or Inf")
+    if np.abs(pos).max() > MAX_COORDINATE_MM:
+        raise ValueError(f"make_rig: argument 'position': a coordinate is {np.abs(pos).max():.3g} mm, beyond "
+                         f"{MAX_COORDINATE_MM:.0e} mm (stage.MAX_COORDINATE_MM): wrong units?")
     r = np.linalg.norm(pos, axis=1)
     if np.any(r <= 0):
-        raise ValueError(f"light {int(np.argmin(r))} sits at the rig centre; lights need a direction")
+        raise ValueError(f"make_rig: argument 'position': light {int(np.argmin(r))} sits at the rig centre; "
+                         "lights need a direction")
     inten = np.asarray(intensity, dtype=np.float64)
     if inten.ndim == 0:
         inten = np.full((pos.shape[0], channels), float(inten))
     elif inten.ndim == 1:
         inten = np.repeat(inten[:, None], channels, axis=1)
-    if inten.shape[0] != pos.shape[0]:
-        raise ValueError(f"intensity has {inten.shape[0]} rows for {pos.shape[0]} lights")
-    if np.any(inten < 0) or not np.all(np.isfinite(inten)):
-        raise ValueError("light intensities must be finite and non-negative")
+    if inten.ndim != 2 or inten.shape[0] != pos.shape[0]:
+        raise ValueError(f"make_rig: argument 'intensity' has shape {inten.shape} for {pos.shape[0]} lights "
+                         "(scalar, [L] or [L, C])")
+    _check_intensities(inten, "make_rig's argument 'intensity'")
     if calibration is not None:
         inten = inten * _calibration_array(calibration, inten.shape)
+        _check_intensities(inten, "make_rig's argument 'intensity' times 'calibration'")
     omega = voronoi_solid_angles(pos)
     return Rig(
         position=jnp.asarray(pos, dtype=jnp.float32),
@@ -253,6 +261,15 @@ def light_stage_x(ordering: str = "all", intensity: float | None = None) -> Rig:
     return make_rig(pos, intensity, near_field=True)
 
 
+def _check_intensities(inten: np.ndarray, what: str) -> None:
+    """Finite (as float32 too), non-negative and not all zero: a rig of dark lights images nothing, and
+    every fit or relighting divides by its irradiance."""
+    if np.any(inten < 0) or not np.all(np.isfinite(inten)) or np.abs(inten).max(initial=0.0) > _FLOAT32_MAX:
+        raise ValueError(f"light intensities must be finite (in float32) and non-negative ({what})")
+    if not np.any(inten > 0):
+        raise ValueError(f"every light has intensity 0 ({what}); a rig needs at least one lit light")
+
+
 def _calibration_array(calibration, shape) -> np.ndarray:
     cal = np.asarray(calibration, dtype=np.float64)
     if cal.ndim == 1 and cal.shape[0] == shape[1]:
@@ -277,7 +294,9 @@ def calibrate(rig: Rig, gains) -> Rig:
     calibrated rig. Geometry and solid angles are unchanged.
     """
     g = _calibration_array(gains, tuple(rig.intensity.shape))
-    inten = jnp.asarray(np.asarray(rig.intensity, np.float64) * g, rig.intensity.dtype)
+    inten = np.asarray(rig.intensity, np.float64) * g
+    _check_intensities(inten, "calibrate's argument 'gains' times the rig's intensities")
+    inten = jnp.asarray(inten, rig.intensity.dtype)
     return Rig(position=rig.position, intensity=inten,
                solid_angle=rig.solid_angle, near_field=rig.near_field)
 

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import read_json, read_light_table
+from ._mesh import MAX_COORDINATE_MM
 from ._rig import _LSX_DUPLICATE_ROW, _LSX_DUPLICATED_ROW, _LSX_ORIGINAL_VALUE_CM, Rig, calibrate
 from ._rig_io import position_array, position_key, rig_from_dict
 
@@ -54,8 +55,8 @@ _GAP_HINT_RATIO = 1.5
 def up_rotation(up: str, where: str = "up") -> np.ndarray:
     """[3, 3] rotation taking the axis ``up`` ("+x" ... "-z") to +y: the smallest
     one (Rodrigues), a 180-degree turn about +x when ``up`` is "-y"."""
-    up = _AXIS_ALIASES.get(up, up)
-    if up not in AXES:
+    up = _AXIS_ALIASES.get(up, up) if isinstance(up, str) else up
+    if not isinstance(up, str) or up not in AXES:
         raise ValueError(f"{where}: up axis must be one of {', '.join(AXES)}, got {up!r}")
     u = np.asarray(AXES[up], np.float64)
     y = np.array([0.0, 1.0, 0.0])
@@ -89,9 +90,13 @@ def _up_hint(pos: np.ndarray) -> str:
 def _table(path: Path) -> np.ndarray:
     if path.suffix.lower() == ".npy":
         try:
-            arr = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as err:
-            raise ValueError(f"{path}: not a readable .npy array ({err})") from None
+            # Memory-mapped first: numpy checks the declared shape against the file's size, so a corrupt
+            # header declaring 10^12 rows is refused instead of allocated (np.load would allocate it).
+            arr = np.array(np.load(path, mmap_mode="r", allow_pickle=False))
+        except MemoryError:
+            raise
+        except Exception as err:  # ValueError, OSError, EOFError, SyntaxError (the header is a Python literal)
+            raise ValueError(f"{path}: not a readable .npy array ({type(err).__name__}: {err})") from None
     else:
         arr = read_light_table(path, "light positions")
     arr = np.asarray(arr)
@@ -100,6 +105,9 @@ def _table(path: Path) -> np.ndarray:
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{path}: light positions contain NaN or Inf")
+    if np.abs(arr).max() > MAX_COORDINATE_MM:
+        raise ValueError(f"{path}: light positions reach {np.abs(arr).max():.3g}, beyond {MAX_COORDINATE_MM:.0e} "
+                         "in any unit (stage.MAX_COORDINATE_MM)")
     return arr
 
 
@@ -132,7 +140,7 @@ def _declared_units(doc: Mapping, where: str) -> str | None:
         if u not in POSITION_UNITS:
             raise ValueError(f"{where}: field 'units' must be one of {', '.join(POSITION_UNITS)}, got {u!r}")
         return u
-    if isinstance(u, Mapping) and u.get("positions") in POSITION_UNITS:
+    if isinstance(u, Mapping) and isinstance(u.get("positions"), str) and u["positions"] in POSITION_UNITS:
         return u["positions"]
     return None  # absent, or rig_to_dict's free-text dict: the stage schema's millimetres
 
@@ -147,7 +155,10 @@ def _from_positions(pos: np.ndarray, units: str, where: str, doc: Mapping | None
         body = {"directions": pos.tolist(), "near_field": False}
     else:
         pos_mm = pos * POSITION_UNITS[units]
-        body = {"positions": pos_mm.tolist(), "near_field": bool(doc.get("near_field", True))}
+        near = doc.get("near_field", True)
+        if not (isinstance(near, bool) or (isinstance(near, int) and near in (0, 1))):
+            raise ValueError(f"{where}: field 'near_field' must be true or false, got {near!r}")
+        body = {"positions": pos_mm.tolist(), "near_field": bool(near)}
     if "intensities" in doc:
         body["intensities"] = doc["intensities"]
     elif units == "directions" or not body["near_field"]:
@@ -167,7 +178,7 @@ def _from_positions(pos: np.ndarray, units: str, where: str, doc: Mapping | None
 
 def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str, np.ndarray]]:
     where = str(path)
-    if units is not None and units not in POSITION_UNITS:
+    if units is not None and (not isinstance(units, str) or units not in POSITION_UNITS):
         raise ValueError(f"{where}: units must be one of {', '.join(POSITION_UNITS)}, got {units!r}")
     suffix = path.suffix.lower()
     if suffix == ".json":
@@ -207,6 +218,8 @@ def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str,
         units_, up_, rest, subsets = units, up, {}, {}
     else:
         raise ValueError(f"{where}: unknown rig file type {path.suffix!r}; expected .json, .npy or .txt")
+    if not isinstance(up_, str):
+        raise ValueError(f"{where}: field 'up' must be one of {', '.join(AXES)}, got {up_!r}")
     pos = pos @ up_rotation(up_, f"{where}: field 'up'").T
     return _from_positions(pos, units_, where, rest), subsets
 
@@ -225,7 +238,7 @@ def load_rig_file(path, units: str | None = None, up: str | None = None, subset:
     rig, subsets = _read(path, units, up)
     if subset is None:
         return rig
-    if subset not in subsets:
+    if not isinstance(subset, str) or subset not in subsets:
         raise ValueError(f"{path}: no light subset {subset!r}; the file has {sorted(subsets) or 'none'}")
     return rig.subset(subsets[subset])
 
@@ -236,5 +249,11 @@ def rig_file_subsets(path) -> dict[str, np.ndarray]:
     if path.suffix.lower() != ".json":
         return {}
     doc = read_json(path, "rig file")
-    n = len(doc.get("positions_cm", doc.get("positions", doc.get("directions", [])))) if isinstance(doc, Mapping) else 0
-    return _subsets(doc, n, str(path)) if isinstance(doc, Mapping) else {}
+    if not isinstance(doc, Mapping):
+        return {}
+    if "positions_cm" in doc:
+        rows = doc["positions_cm"]
+        n = len(rows) if isinstance(rows, list) else 0
+    else:
+        n = len(position_array(doc, position_key(doc, str(path)), str(path)))
+    return _subsets(doc, n, str(path))

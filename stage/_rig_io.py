@@ -27,6 +27,7 @@ import numpy as np
 from brdf import atomic_write_text
 
 from ._files import read_json
+from ._mesh import MAX_COORDINATE_MM
 from ._rig import Rig, make_rig
 
 __all__ = ["load_rig", "rig_from_dict", "rig_to_dict", "save_rig"]
@@ -58,21 +59,27 @@ def position_key(doc: Mapping, where: str) -> str:
 
 
 def position_array(doc: Mapping, key: str, where: str) -> np.ndarray:
-    """Field ``key`` of ``doc`` as float64 [L, 3], L >= 1; ValueError starting
-    with ``where`` and naming the field otherwise."""
+    """Field ``key`` of ``doc`` as float64 [L, 3], L >= 1, finite and within
+    ``MAX_COORDINATE_MM``; ValueError starting with ``where`` and naming the
+    field otherwise."""
     try:
         pos = np.asarray(doc[key], np.float64)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{where}: field {key!r} must be [L, 3] numbers ({err})") from None
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise ValueError(f"{where}: field {key!r} must be [L, 3] with L >= 1, got shape {pos.shape}")
+    if not np.all(np.abs(pos) <= MAX_COORDINATE_MM):  # NaN too
+        raise ValueError(f"{where}: field {key!r} must be finite numbers within {MAX_COORDINATE_MM:.0e} "
+                         "(stage.MAX_COORDINATE_MM)")
     return pos
 
 
 def rig_from_dict(doc: object, where: str = "rig") -> Rig:
     """A rig from its dict (module docstring schema). Raises ValueError starting
     with ``where`` (a file name, say) and naming the field that is missing or
-    malformed."""
+    malformed: positions not [L, 3] finite numbers (within
+    ``stage.MAX_COORDINATE_MM``), intensities negative, non-finite or all zero,
+    solid angles negative or non-finite."""
     if not isinstance(doc, Mapping):
         raise ValueError(f"{where}: a rig must be a JSON object, got {type(doc).__name__}")
     key = position_key(doc, where)
@@ -89,12 +96,19 @@ def rig_from_dict(doc: object, where: str = "rig") -> Rig:
         inten = np.asarray(doc.get("intensities", 1.0), np.float64)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{where}: field 'intensities' must be numbers ({err})") from None
+    if np.any(inten < 0) or not np.all(np.isfinite(inten)):
+        raise ValueError(f"{where}: bad rig (light intensities must be finite and non-negative: field 'intensities')")
+    if not np.any(inten > 0):
+        raise ValueError(f"{where}: field 'intensities': every light has intensity 0; a rig needs a lit light")
     try:
         rig = make_rig(pos, inten, near_field=bool(near))
     except (ValueError, TypeError, IndexError) as err:
         raise ValueError(f"{where}: bad rig ({err})") from None
     if "solid_angles" in doc:
-        omega = np.asarray(doc["solid_angles"], np.float64)
+        try:
+            omega = np.asarray(doc["solid_angles"], np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{where}: field 'solid_angles' must be [L] numbers ({err})") from None
         # A mismatched table (a rig subset stored with the full rig's cells) is
         # ignored in favour of the Voronoi cells, as earlier readers did.
         if omega.shape == (rig.num_lights,):

@@ -32,7 +32,6 @@ import contextlib
 import dataclasses
 import os
 import shutil
-import string
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -41,7 +40,7 @@ import numpy as np
 
 import stage
 
-from ._errors import ImageFormatError, check_radiance, path_inside
+from ._errors import ImageFormatError, check_image_size, check_radiance, path_inside, path_template
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
 
@@ -79,14 +78,35 @@ class CaptureData:
     views: tuple[int, ...]
 
 
-def _rig_light_count(rig: Mapping, where) -> int:
+def _rig_light_count(rig: object, where) -> int:
+    if not isinstance(rig, Mapping):
+        raise ImageFormatError(f"{where}: a rig must be a JSON object, got {type(rig).__name__}")
     for key in ("directions", "positions"):
         if key in rig:
-            arr = np.asarray(rig[key], np.float64)
+            arr = _rig_array(rig, key, where)
             if arr.ndim != 2 or arr.shape[1] != 3:
                 raise ImageFormatError(f"{where}: rig '{key}' must be [L, 3], got shape {arr.shape}")
             return arr.shape[0]
     raise ImageFormatError(f"{where}: rig needs 'directions' or 'positions' ([L, 3])")
+
+
+def _rig_array(rig: Mapping, key: str, where) -> np.ndarray:
+    """Field ``key`` of a rig dict as a finite float64 array (ImageFormatError naming the field)."""
+    try:
+        arr = np.asarray(rig[key], np.float64)
+    except (TypeError, ValueError) as err:
+        raise ImageFormatError(f"{where}: rig field {key!r} must be numbers ({err})") from None
+    if not np.all(np.isfinite(arr)):
+        raise ImageFormatError(f"{where}: rig field {key!r} has NaN or Inf values")
+    return arr
+
+
+def _count(info: Mapping, key: str, where) -> int:
+    """A positive integer field of capture.json (a JSON integer, not a bool or a string)."""
+    value = info.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ImageFormatError(f"{where}: field {key!r} must be a positive integer, got {value!r}")
+    return value
 
 
 @contextlib.contextmanager
@@ -208,17 +228,38 @@ def _load_json(path: Path):
 def _files_template(template: object, where: str) -> str:
     """capture.json's ``files``: a format string whose only fields are ``{view}``
     and ``{light}`` (with format specs), no attribute or index access."""
-    if not isinstance(template, str) or not template:
-        raise ImageFormatError(f"{where}: must be a path template string, got {template!r}")
-    try:
-        fields = [f for _, f, _, _ in string.Formatter().parse(template) if f is not None]
-    except ValueError as err:
-        raise ImageFormatError(f"{where}: {template!r} is not a format string ({err})") from None
-    bad = [f for f in fields if f not in ("view", "light")]
-    if bad or "light" not in fields:
-        raise ImageFormatError(f"{where}: {template!r} may use only {{view}} and {{light}} (and needs {{light}}), "
-                               f"got fields {fields}")
-    return template
+    return path_template(template, {"view": 0, "light": 0}, ("light",), where)
+
+
+def _check_info(info: object, where: Path) -> Mapping:
+    """capture.json's object, every field checked (ImageFormatError naming the file and the field)."""
+    if not isinstance(info, Mapping):
+        raise ImageFormatError(f"{where}: must be a JSON object, got {type(info).__name__}")
+    if info.get("format") != _FORMAT:
+        raise ImageFormatError(f"{where}: not a relight capture (format {info.get('format')!r})")
+    version = info.get("version", _VERSION)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ImageFormatError(f"{where}: field 'version' must be a positive integer, got {version!r}")
+    if version > _VERSION:
+        raise ImageFormatError(f"{where}: format version {version} is newer than this reader ({_VERSION})")
+    _count(info, "n_views", where)
+    _count(info, "n_lights", where)
+    shape, channels = info.get("sample_shape"), info.get("channels")
+    if not (isinstance(shape, list) and len(shape) == 2
+            and all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape)):
+        raise ImageFormatError(f"{where}: field 'sample_shape' must be [H, W] positive integers, got {shape!r}")
+    check_image_size(where, shape[0], shape[1], what="field 'sample_shape'")
+    if not (isinstance(channels, list) and channels and all(isinstance(c, str) and c for c in channels)
+            and len(set(channels)) == len(channels) and "valid" not in channels):
+        raise ImageFormatError(f"{where}: field 'channels' must be a list of distinct channel names "
+                               f"(not 'valid'), got {channels!r}")
+    for key in ("has_valid", "half"):
+        if not isinstance(info.get(key, False), bool):
+            raise ImageFormatError(f"{where}: field {key!r} must be true or false, got {info[key]!r}")
+    if not isinstance(info.get("metadata", {}), Mapping):
+        raise ImageFormatError(f"{where}: field 'metadata' must be a JSON object, got "
+                               f"{type(info['metadata']).__name__}")
+    return info
 
 
 class CaptureReader:
@@ -235,22 +276,11 @@ class CaptureReader:
         self.folder = Path(folder)
         if not self.folder.is_dir():
             raise FileNotFoundError(f"{self.folder}: no such capture folder")
-        info = _load_json(self.folder / "capture.json")
         where = self.folder / "capture.json"
-        if info.get("format") != _FORMAT:
-            raise ImageFormatError(f"{where}: not a relight capture (format {info.get('format')!r})")
-        if info.get("version", 0) > _VERSION:
-            raise ImageFormatError(f"{where}: format version {info.get('version')} is newer than this reader "
-                                   f"({_VERSION})")
-        try:
-            self.n_views = int(info["n_views"])
-            self.n_lights = int(info["n_lights"])
-            self.sample_shape = tuple(int(s) for s in info["sample_shape"])
-            self.channels = list(info["channels"])
-        except (KeyError, TypeError, ValueError) as err:
-            raise ImageFormatError(f"{where}: missing or bad field ({err})") from None
-        self.has_valid = bool(info.get("has_valid", False))
-        self.half = bool(info.get("half", False))
+        info = _check_info(_load_json(where), where)
+        self.n_views, self.n_lights = info["n_views"], info["n_lights"]
+        self.sample_shape, self.channels = tuple(info["sample_shape"]), list(info["channels"])
+        self.has_valid, self.half = info.get("has_valid", False), info.get("half", False)
         self.metadata = dict(info.get("metadata", {}))
         self._files = _files_template(info.get("files", _FILES), f"{where}: field 'files'")
         self.n_samples = self.sample_shape[0] * self.sample_shape[1]
@@ -262,12 +292,13 @@ class CaptureReader:
             raise ImageFormatError(
                 f"{rig_path}: {n_rig} lights in the rig but capture.json declares {self.n_lights} light images per view"
             )
+        rig = dict(rig)
         for key in ("directions", "positions", "intensities", "solid_angles"):
             if key in rig:
-                rig[key] = np.asarray(rig[key], np.float64)
-        if "intensities" in rig and rig["intensities"].shape[0] != self.n_lights:
-            raise ImageFormatError(f"{rig_path}: 'intensities' has {rig['intensities'].shape[0]} rows, "
-                                   f"expected {self.n_lights}")
+                rig[key] = _rig_array(rig, key, rig_path)
+        if "intensities" in rig and (rig["intensities"].ndim == 0 or rig["intensities"].shape[0] != self.n_lights):
+            raise ImageFormatError(f"{rig_path}: 'intensities' has shape {rig['intensities'].shape}, expected "
+                                   f"{self.n_lights} rows")
         self.rig = rig
         cam_path = self.folder / "cameras.json"
         self.cameras = _load_json(cam_path)
@@ -378,7 +409,7 @@ class CaptureReader:
                     valid[i, j] = val
         rig = dict(self.rig)
         for key in ("directions", "positions", "intensities", "solid_angles"):
-            if key in rig and len(rig[key]) == self.n_lights:
+            if key in rig and np.ndim(rig[key]) >= 1 and len(rig[key]) == self.n_lights:
                 rig[key] = rig[key][list(ls)]
         return CaptureData(
             radiance=radiance,

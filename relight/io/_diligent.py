@@ -6,7 +6,8 @@ Uncalibrated Photometric Stereo"):
     folder/light_directions.txt   L x 3 unit vectors, camera frame
     folder/light_intensities.txt  L x 3 RGB intensities
     folder/mask.png               object mask (pixels equal to the mask's maximum)
-    folder/Normal_gt.mat          optional, key 'Normal_gt', H x W x 3
+    folder/Normal_gt.mat          optional, key 'Normal_gt', H x W x 3 (MAT v5, read by a bounded
+                                  parser of our own: scipy's crashes on some corrupt files)
 
 The camera frame is x right, y up, z toward the camera, i.e. the light
 stage's frame with the camera on +z.
@@ -16,13 +17,15 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 import stage
 
-from ._errors import ImageFormatError, check_radiance
+from ._errors import ImageFormatError, check_radiance, path_inside
 from ._png import read_png
 
 __all__ = ["DiligentData", "diligent_capture", "is_diligent_folder", "lambert_normals", "read_diligent"]
@@ -71,7 +74,13 @@ def _light_names(folder: Path) -> list[str]:
     """The light images in light order: filenames.txt if present, else the numbered PNGs sorted."""
     names_file = folder / "filenames.txt"
     if names_file.is_file():
-        names = [ln.strip() for ln in names_file.read_text().splitlines() if ln.strip()]
+        try:
+            text = names_file.read_text(encoding="utf-8")
+        except UnicodeDecodeError as err:
+            raise ImageFormatError(f"{names_file}: not UTF-8 text ({err})") from None
+        names = [ln.strip() for ln in text.splitlines() if ln.strip()]
+        for i, name in enumerate(names):  # names come from a user's file: they must stay in the folder
+            path_inside(folder, name, f"{names_file}: line {i + 1}", what="the DiLiGenT folder")
     else:
         names = sorted(p.name for p in folder.glob("*.png") if p.stem.isdigit())
     if not names:
@@ -102,6 +111,8 @@ def _read_images(folder: Path, names: list[str], index: np.ndarray) -> np.ndarra
     images = None
     for k, i in enumerate(index):
         path = folder / names[i]
+        if not path.is_file():
+            raise ImageFormatError(f"{path}: light image {i + 1} is missing (listed in filenames.txt or by number)")
         img = read_png(path)
         if img.dtype != np.uint16 or img.shape[-1] != 3:
             raise ImageFormatError(f"{path}: expected a 16-bit RGB PNG, got {img.dtype} with "
@@ -126,21 +137,97 @@ def _read_mask(folder: Path, size: tuple[int, int]) -> np.ndarray:
     return m == m.max() if m.max() > 0 else np.zeros(m.shape, bool)
 
 
+# MAT v5 numeric element types (MATLAB's "MAT-File Format", Table 1-1) -> numpy dtypes.
+_MAT_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 9: "f8", 12: "i8", 13: "u8"}
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+
+
+def _mat_elements(buf: bytes, order: str):
+    """(type, payload) of each data element in ``buf``: 8-byte tags (or the 4-byte small-element form),
+    payloads padded to 8 bytes but compressed ones. Raises ValueError on a tag that overruns ``buf``."""
+    pos = 0
+    while pos + 8 <= len(buf):
+        kind, n = struct.unpack_from(order + "II", buf, pos)
+        if kind >> 16:  # small data element: size in the upper half, data in the tag's second word
+            yield kind & 0xFFFF, buf[pos + 4 : pos + 4 + (kind >> 16)]
+            pos += 8
+            continue
+        if pos + 8 + n > len(buf):
+            raise ValueError(f"a data element of {n} bytes overruns the file at byte {pos}")
+        yield kind, buf[pos + 8 : pos + 8 + n]
+        pos += 8 + n + (0 if kind == _MI_COMPRESSED else -n % 8)  # compressed elements are not padded
+
+
+def _matrix_name(head: bytes, order: str) -> str | None:
+    """The name of the matrix element starting ``head`` (the first bytes of one), or None."""
+    if len(head) < 8 or struct.unpack_from(order + "I", head)[0] != _MI_MATRIX:
+        return None
+    parts = []
+    try:
+        for part in _mat_elements(head[8:], order):
+            parts.append(part)
+            if len(parts) == 3:
+                break
+    except ValueError:  # the head ends inside an element: what came before is enough
+        pass
+    return bytes(parts[2][1]).decode("latin-1") if len(parts) == 3 and parts[2][0] in (1, 2) else None
+
+
+def _mat_variable(data: bytes, name: str, shape: tuple[int, ...]) -> np.ndarray | None:
+    """Variable ``name`` of a MAT v5 file's bytes as float64 of ``shape`` (None if absent). Our own reader
+    rather than scipy.io.loadmat, whose C parser crashes the interpreter on some corrupt files: every
+    length here is checked against the bytes present, and a compressed element is inflated to at most
+    the size the expected variable needs (no zlib bomb)."""
+    if len(data) < 128 or data[126:128] not in (b"IM", b"MI"):
+        raise ValueError("not a MATLAB v5 MAT-file (v4 and v7.3/HDF5 files are not read)")
+    order = "<" if data[126:128] == b"IM" else ">"
+    need = 8 * int(np.prod(shape)) + 4096
+    for kind, payload in _mat_elements(data[128:], order):
+        if kind == _MI_COMPRESSED:
+            # The variable's name first, from the first bytes inflated, so another (maybe large) variable is
+            # skipped without inflating it; ours is inflated to at most the bytes it needs.
+            if _matrix_name(zlib.decompressobj().decompress(payload, 512), order) != name:
+                continue
+            found = list(_mat_elements(zlib.decompressobj().decompress(payload, need), order))
+            if not found:
+                continue
+            kind, payload = found[0]
+        if kind != _MI_MATRIX:
+            continue
+        parts = list(_mat_elements(payload, order))
+        if len(parts) < 4 or parts[0][0] != 6 or parts[1][0] != 5 or parts[2][0] not in (1, 2):
+            raise ValueError("a matrix element without array flags, dimensions and a name")
+        if bytes(parts[2][1]).decode("latin-1") != name:
+            continue
+        flags = struct.unpack_from(order + "I", parts[0][1])[0]
+        dims = tuple(int(d) for d in np.frombuffer(parts[1][1], order + "i4"))
+        if flags & 0x800:
+            raise ValueError(f"{name} is complex")
+        if dims != tuple(shape):
+            raise ValueError(f"{name} has shape {dims}, expected {tuple(shape)}")
+        kind, real = parts[3]
+        if kind not in _MAT_TYPES or len(real) != int(np.prod(dims)) * np.dtype(_MAT_TYPES[kind]).itemsize:
+            raise ValueError(f"{name}'s data (type {kind}, {len(real)} bytes) does not fill {dims}")
+        return np.frombuffer(real, order + _MAT_TYPES[kind]).reshape(dims, order="F").astype(np.float64)
+    return None
+
+
 def _read_normals(folder: Path, size: tuple[int, int]) -> np.ndarray | None:
     """Normal_gt.mat's 'Normal_gt' [H, W, 3] float32, or None without the file."""
     gt_path = folder / "Normal_gt.mat"
     if not gt_path.is_file():
         return None
-    from scipy.io import loadmat
-
-    mat = loadmat(gt_path)
-    if "Normal_gt" not in mat:
-        found = sorted(k for k in mat if not k.startswith("__"))
-        raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable (found {found})")
-    normals = np.asarray(mat["Normal_gt"], np.float32)
-    if normals.shape != (*size, 3):
-        raise ImageFormatError(f"{gt_path}: Normal_gt has shape {normals.shape}, expected {(*size, 3)}")
-    return normals
+    try:
+        normals = _mat_variable(gt_path.read_bytes(), "Normal_gt", (*size, 3))
+    except (ValueError, struct.error, zlib.error) as err:
+        raise ImageFormatError(f"{gt_path}: not a readable MAT-file Normal_gt ({type(err).__name__}: {err})") from None
+    if normals is None:
+        raise ImageFormatError(f"{gt_path}: no 'Normal_gt' variable")
+    # Unit vectors (zero outside the object); the benchmark's files are unit to 2e-7.
+    length = np.linalg.norm(np.nan_to_num(np.clip(normals, -2.0, 2.0), nan=2.0), axis=-1)
+    if not np.all(np.isfinite(normals)) or np.any((length > 1e-6) & (np.abs(length - 1) > 1e-3)):
+        raise ImageFormatError(f"{gt_path}: Normal_gt must hold finite unit vectors (or zeros outside the object)")
+    return normals.astype(np.float32)
 
 
 def read_diligent(folder: str | os.PathLike, lights: slice | list[int] | None = None) -> DiligentData:

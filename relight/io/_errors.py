@@ -7,11 +7,31 @@ Every message names the file, the field and what was expected (DESIGN.md,
 from __future__ import annotations
 
 import os
+import re
+import string
+from collections.abc import Mapping
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-__all__ = ["ImageFormatError", "check_radiance", "path_inside"]
+__all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_image_size",
+           "check_radiance", "path_inside", "path_template"]
+
+# The largest image a reader decodes: 2^28 pixels (16384 x 16384, 3 GiB as float32 RGB). Readers check a
+# file's declared size against it before allocating anything, so a corrupt or hostile header (an HDR saying
+# 200000 x 200000) is refused with a named error instead of a MemoryError. stage.MAX_CAMERA_PIXELS is the
+# same number for cameras.json. Readers look it up at call time, so a test may lower it.
+MAX_IMAGE_PIXELS = 2**28
+
+# The largest radiance accepted as input (check_radiance). Float32 sums and products downstream (light
+# weights times captures summed over ~10^3 lights, squared residuals summed over ~10^7 samples) stay finite
+# for values up to 1e15, which is still six orders of magnitude above the sun's luminance in cd m^-2.
+# RGBE alone can hold 1.7e38, where the sum of one pixel's three channels is Inf.
+MAX_RADIANCE = 1e15
+
+# The longest relative path a user's file may name (path_inside); Linux's PATH_MAX is 4096, and an
+# over-long name would surface as an OSError from the first os call instead of an error naming the field.
+MAX_PATH_CHARS = 1024
 
 
 class ImageFormatError(ValueError):
@@ -22,11 +42,14 @@ class ImageFormatError(ValueError):
 def path_inside(folder: str | os.PathLike, rel: object, where: str, *, what: str = "the folder",
                 error: type[ValueError] = ImageFormatError) -> Path:
     """``folder / rel`` for a path read from a user's file, refusing what would
-    leave ``folder``: a non-string or empty value, an absolute path (POSIX or
+    leave ``folder``: a non-string or empty value (or one with a NUL byte or
+    longer than ``MAX_PATH_CHARS``), an absolute path (POSIX or
     Windows drive), ``..`` components, and links that resolve outside. The
     error (``error``, default :class:`ImageFormatError`) names ``where``."""
-    if not isinstance(rel, str) or not rel:
-        raise error(f"{where}: must be a relative path inside {what}, got {rel!r}")
+    if not isinstance(rel, str) or not rel or "\0" in rel or len(rel) > MAX_PATH_CHARS:
+        shown = repr(rel) if len(repr(rel)) <= 80 else repr(rel)[:77] + "..."
+        raise error(f"{where}: must be a relative path inside {what} (at most {MAX_PATH_CHARS} characters, "
+                    f"no NUL byte), got {shown}")
     pure = PurePosixPath(rel.replace("\\", "/"))
     if pure.is_absolute() or Path(rel).is_absolute() or ".." in pure.parts or (pure.parts and ":" in pure.parts[0]):
         raise error(f"{where}: path {rel!r} leaves {what} (absolute paths and '..' are refused)")
@@ -37,8 +60,58 @@ def path_inside(folder: str | os.PathLike, rel: object, where: str, *, what: str
     return path
 
 
+def path_template(template: object, fields: Mapping[str, object], required: tuple[str, ...], where: str) -> str:
+    """``template`` checked as a file-name pattern read from a user's file: a
+    ``str.format`` string whose fields are only names from ``fields`` (no
+    attribute or index access), with every name in ``required``, field widths
+    under 1000, formatting ``fields``' trial values (name -> value) without
+    error into at most ``MAX_PATH_CHARS`` characters and no NUL byte. Raises
+    :class:`ImageFormatError` naming ``where``."""
+    if not isinstance(template, str) or not template:
+        raise ImageFormatError(f"{where}: must be a path template string, got {template!r}")
+    shown = repr(template) if len(template) <= 80 else repr(template[:77]) + "..."
+    try:
+        parsed = [(f, spec or "") for _, f, spec, _ in string.Formatter().parse(template) if f is not None]
+        # Specs may nest fields ("{light:{view}}"): those follow the same rule.
+        nested = [f for _, spec in parsed for _, f, _, _ in string.Formatter().parse(spec) if f is not None]
+    except ValueError as err:
+        raise ImageFormatError(f"{where}: {shown} is not a format string ({err})") from None
+    names = [f for f, _ in parsed] + nested
+    if any(f not in fields for f in names) or any(r not in names for r in required):
+        allowed = ", ".join("{" + f + "}" for f in fields)
+        raise ImageFormatError(f"{where}: {shown} may use only {allowed} (and needs "
+                               f"{', '.join('{' + r + '}' for r in required)}), got fields {names}")
+    # Format specs are free ("{light:03d}"), but a width of 1000 or more would build a path of that many
+    # characters (at a million, the memory for it) before anything else could refuse it.
+    if any(re.search(r"\d{4,}", spec) for _, spec in parsed):
+        raise ImageFormatError(f"{where}: {shown} has a field width of 1000 or more characters")
+    try:  # one trial, so a spec the values refuse ("{light:s}", "{light:{view.x}}") is named here
+        sample = template.format(**fields)
+    except (ValueError, TypeError, AttributeError, KeyError, IndexError) as err:
+        raise ImageFormatError(f"{where}: {shown} does not format {dict(fields)} "
+                               f"({type(err).__name__}: {err})") from None
+    if len(sample) > MAX_PATH_CHARS or "\0" in sample:
+        raise ImageFormatError(f"{where}: {shown} gives a path of {len(sample)} characters (at most "
+                               f"{MAX_PATH_CHARS}) or one with a NUL byte")
+    return template
+
+
+def check_image_size(path: str | os.PathLike, height: int, width: int, channels: int = 1,
+                     what: str = "image") -> None:
+    """Refuse a declared image size before allocating it: both sides >= 1 and
+    ``height * width`` at most :data:`MAX_IMAGE_PIXELS` (``channels`` is only
+    reported). Raises :class:`ImageFormatError` naming the file."""
+    h, w = int(height), int(width)
+    if h <= 0 or w <= 0:
+        raise ImageFormatError(f"{path}: {what} declares an empty size {w}x{h} (width x height)")
+    if h * w > MAX_IMAGE_PIXELS:
+        raise ImageFormatError(f"{path}: {what} declares {w}x{h} pixels ({channels} channel(s)), more than the "
+                               f"reader's limit of {MAX_IMAGE_PIXELS} pixels (relight.io._errors.MAX_IMAGE_PIXELS)")
+
+
 def check_radiance(values: np.ndarray, path: str | os.PathLike, what: str = "radiance") -> None:
-    """Refuse NaN, Inf or negative values in an input radiance array.
+    """Refuse NaN, Inf, negative values or values above :data:`MAX_RADIANCE` in
+    an input radiance array.
 
     Radiance is a non-negative physical quantity (W sr^-1 m^-2, or relative
     units); a NaN or a negative value in a capture or an environment map is a
@@ -60,4 +133,13 @@ def check_radiance(values: np.ndarray, path: str | os.PathLike, what: str = "rad
         raise ImageFormatError(
             f"{path}: {what} has {int(neg.sum())} negative values (first at index {idx}, "
             f"value {float(values[idx]):.6g}); expected non-negative radiance"
+        )
+    # float16 (max 65504) cannot exceed the limit, and comparing it with 1e15 would overflow the cast.
+    small = values.dtype.kind == "f" and float(np.finfo(values.dtype).max) <= MAX_RADIANCE
+    big = np.zeros(values.shape, bool) if small else values > MAX_RADIANCE
+    if big.any():
+        idx = tuple(int(i) for i in np.argwhere(big)[0])
+        raise ImageFormatError(
+            f"{path}: {what} has {int(big.sum())} values above {MAX_RADIANCE:.0e} (first at index {idx}, "
+            f"value {float(values[idx]):.6g}); float32 sums of such values overflow (relight.io._errors.MAX_RADIANCE)"
         )

@@ -29,7 +29,7 @@ import numpy as np
 import OpenEXR
 
 from ._atomic import atomic_path
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, check_image_size
 
 __all__ = [
     "ExrPart",
@@ -150,6 +150,26 @@ def _encode_header(header: Mapping | None, compression: str, tile_size: int | tu
 # ---------------------------------------------------------------------- read
 
 
+def _open_file(path: Path, header_only: bool) -> OpenEXR.File:
+    try:
+        return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
+    except MemoryError:
+        raise
+    except Exception as err:  # the bindings raise RuntimeError/ValueError
+        raise ImageFormatError(f"{path}: corrupt or truncated OpenEXR file ({err})") from err
+
+
+def _check_sizes(f: OpenEXR.File, path: Path) -> None:
+    """Every part's data window within ``MAX_IMAGE_PIXELS``, read from the header
+    before the bindings allocate the pixel buffers it declares."""
+    for i in range(len(f.parts)):
+        try:
+            (x0, y0), (x1, y1) = (np.asarray(c, np.int64) for c in f.header(i)["dataWindow"])
+        except Exception as err:
+            raise ImageFormatError(f"{path}: part {i} has no readable dataWindow ({err})") from err
+        check_image_size(path, int(y1 - y0 + 1), int(x1 - x0 + 1), what=f"part {i}'s dataWindow")
+
+
 def _open(path: Path, header_only: bool = False) -> OpenEXR.File:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such EXR file")
@@ -157,10 +177,9 @@ def _open(path: Path, header_only: bool = False) -> OpenEXR.File:
         with open(path, "rb") as fh:
             magic = fh.read(4)
         raise ImageFormatError(f"{path}: not an OpenEXR file (magic bytes {magic!r}, expected b'v/1\\x01')")
-    try:
-        return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
-    except Exception as err:  # the bindings raise RuntimeError/ValueError
-        raise ImageFormatError(f"{path}: corrupt or truncated OpenEXR file ({err})") from err
+    head = _open_file(path, header_only=True)
+    _check_sizes(head, path)
+    return head if header_only else _open_file(path, header_only=False)
 
 
 def _num_parts(f: OpenEXR.File) -> int:
@@ -283,7 +302,11 @@ def _default_names(c: int) -> list[str]:
     return names
 
 
-def _prepare_channel(path: Path, name: str, px, half: bool) -> np.ndarray:
+def _prepare_channel(path: Path, name: str, px, half: bool, arg: str) -> np.ndarray:
+    """One channel as the dtype it is stored in. ``half``: NaN and values beyond
+    half's range (Inf included) are refused; float32: finite values beyond its
+    range are refused (they would be stored as Inf), NaN and Inf are stored as
+    they are. ValueError naming the file, the argument and the channel."""
     px = np.asarray(px)
     if px.ndim != 2:
         raise ValueError(f"{path}: channel {name!r} must be 2-D [H, W], got shape {px.shape}")
@@ -291,18 +314,27 @@ def _prepare_channel(path: Path, name: str, px, half: bool) -> np.ndarray:
         return np.ascontiguousarray(px)
     if not np.issubdtype(px.dtype, np.floating) and not np.issubdtype(px.dtype, np.integer) and px.dtype != bool:
         raise ValueError(f"{path}: channel {name!r} has unsupported dtype {px.dtype}")
-    if half and np.isfinite(px).all() and np.abs(px).max(initial=0) > np.finfo(np.float16).max:
-        raise ValueError(
-            f"{path}: channel {name!r} has values up to {np.abs(px).max():.4g}, beyond float16's "
-            f"{float(np.finfo(np.float16).max)}; write it as float (half=False)"
-        )
+    where = f"{path}: argument {arg!r}, channel {name!r}"
+    if half and np.isnan(px).any():
+        raise ValueError(f"{where} has {int(np.isnan(px).sum())} NaN values; half=True refuses them")
+    mag = np.abs(px[np.isfinite(px)] if np.issubdtype(px.dtype, np.floating) else px.astype(np.float64))
+    top = float(mag.max(initial=0.0))
+    limit = float(np.finfo(np.float16 if half else np.float32).max)
+    if half and (top > limit or np.isinf(px).any()):
+        big = float(np.abs(px).max())
+        raise ValueError(f"{where} has values up to {big:.4g}, beyond float16's {limit}; "
+                         "write it as float (half=False)")
+    if not half and top > limit:
+        raise ValueError(f"{where} has values up to {top:.4g}, beyond float32's {limit:.4g} (they would be "
+                         "stored as Inf)")
     return np.ascontiguousarray(px, dtype=np.float16 if half else np.float32)
 
 
-def _prepare_channels(path: Path, channels: Mapping[str, np.ndarray], half: bool) -> dict[str, np.ndarray]:
+def _prepare_channels(path: Path, channels: Mapping[str, np.ndarray], half: bool,
+                      arg: str = "channels") -> dict[str, np.ndarray]:
     if not channels:
         raise ValueError(f"{path}: no channels to write")
-    out = {str(k): _prepare_channel(path, str(k), v, half) for k, v in channels.items()}
+    out = {str(k): _prepare_channel(path, str(k), v, half, arg) for k, v in channels.items()}
     shapes = {v.shape for v in out.values()}
     if len(shapes) != 1:
         raise ValueError(f"{path}: channels have different shapes {sorted(shapes)}")
@@ -328,16 +360,21 @@ def write_exr_channels(
         channels: name -> 2-D array; float arrays are stored as float32 (or
             float16 with ``half=True``), uint32 arrays as UINT.
         header: metadata to store (see the module docstring for types).
-        half: store float channels as IEEE half (10-bit mantissa, max 65504).
+        half: store float channels as IEEE half (10-bit mantissa, max 65504);
+            NaN, Inf and values beyond 65504 raise ValueError. Without it,
+            finite values beyond float32's range raise (NaN / Inf are stored).
         tile_size: ``None`` for a scanline image, else the tile edge (or
             ``(x, y)``) of a single-level tiled image.
         compression: one of none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab
             (the lossy ones are pxr24, b44, b44a, dwaa, dwab).
     """
-    path = Path(path)
-    chans = _prepare_channels(path, channels, half)
-    f = OpenEXR.File(_encode_header(header, compression, tile_size), chans)
-    _write_file(path, f)
+    _write_single(Path(path), channels, header, half, tile_size, compression, "channels")
+
+
+def _write_single(path: Path, channels, header, half, tile_size, compression, arg: str) -> None:
+    """Write a single-part EXR; ``arg`` names the caller's pixel argument in errors."""
+    chans = _prepare_channels(path, channels, half, arg)
+    _write_file(path, OpenEXR.File(_encode_header(header, compression, tile_size), chans))
 
 
 def write_exr(
@@ -365,7 +402,8 @@ def write_exr(
     if len(names) != image.shape[-1] or len(set(names)) != len(names):
         raise ValueError(f"{path}: {len(names)} distinct channel names needed for {image.shape[-1]} channels, "
                          f"got {names}")
-    write_exr_channels(path, {n: image[..., i] for i, n in enumerate(names)}, header, half, tile_size, compression)
+    _write_single(path, {n: image[..., i] for i, n in enumerate(names)}, header, half, tile_size, compression,
+                  "image")
 
 
 def write_exr_parts(
@@ -383,7 +421,8 @@ def write_exr_parts(
     if len(set(names)) != len(names):
         raise ValueError(f"{path}: part names must be distinct, got {names}")
     exr_parts = [
-        OpenEXR.Part(_encode_header(p.header, compression, tile_size), _prepare_channels(path, p.channels, half), n)
-        for p, n in zip(parts, names, strict=True)
+        OpenEXR.Part(_encode_header(p.header, compression, tile_size),
+                     _prepare_channels(path, p.channels, half, f"parts[{i}]"), n)
+        for i, (p, n) in enumerate(zip(parts, names, strict=True))
     ]
     _write_file(path, OpenEXR.File(exr_parts))

@@ -12,6 +12,13 @@ Decoding follows Radiance's ``colr_color``: a component is
 ``(m + 0.5) * 2^(e - 136)`` for ``e > 0`` (the mantissa's mid-point, which
 halves the quantisation error of truncating encoders), and 0 for ``e = 0``.
 The ``EXPOSURE`` header is reported, not applied, as most readers do.
+
+Limits: a declared size above ``MAX_IMAGE_PIXELS`` (``relight/io/_errors.py``,
+2^28 pixels) is refused before any pixel buffer is allocated. The largest
+RGBE value is ``255.5 * 2^119`` (about 1.7e38, below float32's 3.4e38), so the
+reader never returns Inf; ``write_hdr`` refuses values above ``RGBE_MAX`` (the
+largest value the encoding holds) instead of letting the exponent byte wrap.
+Radiance consumers (``check_radiance``) refuse values above ``MAX_RADIANCE``.
 """
 
 from __future__ import annotations
@@ -23,9 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import atomic_write_bytes
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, check_image_size
 
-__all__ = ["read_hdr", "read_hdr_header", "write_hdr"]
+__all__ = ["RGBE_MAX", "read_hdr", "read_hdr_header", "write_hdr"]
+
+# The largest value RGBE stores: mantissa 255 at exponent byte 255, decoded at the mantissa's mid-point
+# (Radiance's colr_color): 255.5 * 2^(255 - 136). Ward's encoder gives exponent byte 256 (which wraps to 0,
+# black) for anything at or above 2^127, so write_hdr refuses values above this instead.
+RGBE_MAX = float(np.ldexp(255.5, 255 - 136))
 
 _MAGICS = (b"#?RADIANCE", b"#?RGBE")
 _RES_RE = re.compile(rb"^([+-])([XY]) (\d+) ([+-])([XY]) (\d+)$")
@@ -45,7 +57,13 @@ def _parse_header(data: bytes, path: Path) -> tuple[dict, tuple, int]:
         key, _, value = line.partition(b"=")
         key_s, value_s = key.decode("ascii", "replace").strip(), value.decode("ascii", "replace").strip()
         if key_s == "EXPOSURE":  # cumulative, per the format notes
-            header[key_s] = header.get(key_s, 1.0) * float(value_s)
+            try:
+                exposure = float(value_s)
+            except ValueError:
+                raise ImageFormatError(f"{path}: header EXPOSURE={value_s!r} is not a number") from None
+            if not (np.isfinite(exposure) and exposure > 0):
+                raise ImageFormatError(f"{path}: header EXPOSURE={value_s!r} must be a positive finite number")
+            header[key_s] = header.get(key_s, 1.0) * exposure
         else:
             header[key_s] = value_s
     fmt = header.get("FORMAT", "32-bit_rle_rgbe")
@@ -62,6 +80,7 @@ def _parse_header(data: bytes, path: Path) -> tuple[dict, tuple, int]:
     orient = ((m.group(1), m.group(2), int(m.group(3))), (m.group(4), m.group(5), int(m.group(6))))
     if orient[0][2] <= 0 or orient[1][2] <= 0:
         raise ImageFormatError(f"{path}: empty image in resolution line")
+    check_image_size(path, orient[0][2], orient[1][2], 3, "the resolution line")
     return header, orient, res_end + 1
 
 
@@ -145,9 +164,12 @@ def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
 def read_hdr(path: str | os.PathLike) -> np.ndarray:
     """Read a Radiance RGBE ``.hdr`` image as float32 ``[H, W, 3]`` (rows top to bottom).
 
-    Units are those of the file (for light probes: relative radiance). Raises
-    ``ImageFormatError`` naming the file on a bad magic, an unsupported format,
-    a bad resolution line, truncated or corrupt pixel data.
+    Units are those of the file (for light probes: relative radiance); values
+    are finite, at most ``RGBE_MAX``. Raises ``ImageFormatError`` naming the
+    file on a bad magic, an unsupported format, a bad header value
+    (``EXPOSURE``), a bad resolution line, a declared size above
+    ``MAX_IMAGE_PIXELS`` (checked before allocating), truncated or corrupt
+    pixel data.
     """
     path = Path(path)
     if not path.is_file():
@@ -155,6 +177,8 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
     data = path.read_bytes()
     _, (slow, fast), pos = _parse_header(data, path)
     n_lines, width = slow[2], fast[2]
+    if len(data) - pos < 4 * n_lines:  # every scanline takes >= 4 bytes (one pixel or an RLE marker)
+        raise ImageFormatError(f"{path}: truncated pixel data ({len(data) - pos} bytes for {n_lines} scanlines)")
     buf = memoryview(data)
     lines = np.empty((n_lines, width, 4), np.uint8)
     prev = None
@@ -227,7 +251,8 @@ def _encode_rle_component(row: np.ndarray) -> bytes:
 
 
 def write_hdr(path: str | os.PathLike, image: np.ndarray, rle: bool = True, exposure: float | None = None) -> None:
-    """Write a float ``[H, W, 3]`` image (non-negative, finite) as Radiance RGBE, atomically.
+    """Write a float ``[H, W, 3]`` image (non-negative, finite, at most
+    ``RGBE_MAX``: ValueError naming ``image`` otherwise) as Radiance RGBE, atomically.
 
     Args:
         rle: new-style run-length encoding (the default, as Radiance writes);
@@ -244,6 +269,9 @@ def write_hdr(path: str | os.PathLike, image: np.ndarray, rle: bool = True, expo
         raise ValueError(f"{path}: HDR image must be [H, W, 3], got shape {img.shape}")
     if not np.isfinite(img).all() or (img < 0).any():
         raise ValueError(f"{path}: HDR image must be finite and non-negative (RGBE cannot store NaN/Inf/negatives)")
+    if img.size and img.max() > RGBE_MAX:
+        raise ValueError(f"{path}: argument 'image' has values up to {float(img.max()):.4g}, beyond RGBE's largest "
+                         f"value {RGBE_MAX:.4g} (its exponent byte would wrap); scale the image down")
     h, w, _ = img.shape
     rgbe = _float_to_rgbe(img)
     head = b"#?RADIANCE\n# Written by relight.io\nFORMAT=32-bit_rle_rgbe\n"

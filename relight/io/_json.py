@@ -44,4 +44,11 @@ def read_json(path: str | os.PathLike, what: str = "JSON file"):
     """The parsed contents of ``path`` (``stage.read_json``, the one JSON reader).
     Raises FileNotFoundError (``what`` says which file was expected) or
     ImageFormatError (a ValueError) naming the file."""
-    return stage.read_json(path, what, error=ImageFormatError)
+    try:
+        return stage.read_json(path, what, error=ImageFormatError)
+    except ImageFormatError:
+        raise
+    # What stage.read_json lets through: an integer of more than 4300 digits (Python's int-parsing limit,
+    # a ValueError) and arrays nested deeper than the recursion limit.
+    except (ValueError, RecursionError) as err:
+        raise ImageFormatError(f"{path}: not valid JSON ({type(err).__name__}: {str(err)[:200]})") from None

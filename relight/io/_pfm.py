@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import atomic_write_bytes
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, check_image_size
 
 __all__ = ["read_pfm", "write_pfm"]
 
@@ -33,7 +33,10 @@ def _tokens(data: bytes, count: int, path: Path) -> tuple[list[bytes], int]:
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:
     """Read a PFM image as float32 ``[H, W, C]`` (C = 3 for ``PF``, 1 for ``Pf``),
-    rows top to bottom. The absolute scale is not applied (it is conventionally 1)."""
+    rows top to bottom. The absolute scale is not applied (it is conventionally 1);
+    values are returned as stored (NaN / Inf included: radiance consumers check
+    them). Raises ``ImageFormatError`` naming the file on a bad magic or header,
+    a size above ``MAX_IMAGE_PIXELS``, or truncated data."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such PFM file")
@@ -41,13 +44,16 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     if data[:2] not in (b"PF", b"Pf"):
         raise ImageFormatError(f"{path}: not a PFM file (first bytes {data[:2]!r}, expected 'PF' or 'Pf')")
     (magic, w, h, scale), pos = _tokens(data, 4, path)
+    if magic not in (b"PF", b"Pf"):
+        raise ImageFormatError(f"{path}: not a PFM file (magic {magic[:8]!r}, expected 'PF' or 'Pf')")
     try:
         w, h, scale = int(w), int(h), float(scale)
     except ValueError as err:
         raise ImageFormatError(f"{path}: bad PFM header ({err})") from None
-    if w <= 0 or h <= 0 or scale == 0:
+    if w <= 0 or h <= 0 or scale == 0 or not np.isfinite(scale):
         raise ImageFormatError(f"{path}: bad PFM header (size {w}x{h}, scale {scale})")
     c = 3 if magic == b"PF" else 1
+    check_image_size(path, h, w, c, "the PFM header")
     need = w * h * c * 4
     if len(data) - pos < need:
         raise ImageFormatError(f"{path}: truncated PFM data ({len(data) - pos} bytes, expected {need})")

@@ -34,7 +34,7 @@ import stage
 
 from ..image._tonemap import srgb_decode, srgb_encode, to_uint16
 from ._capture import _atomic_folder
-from ._errors import ImageFormatError, check_radiance, path_inside
+from ._errors import ImageFormatError, check_radiance, path_inside, path_template
 from ._exr import read_exr, write_exr
 from ._json import read_json, write_json
 from ._png import read_png, write_png
@@ -128,6 +128,18 @@ def _distortion(entry: Mapping, where: str) -> dict | None:
     return dict(zip(_DISTORTION, arr.tolist(), strict=True))
 
 
+def _rig_spec(spec: object, where) -> Mapping:
+    """capture.json's ``rig``: a file name, or {"file", "units", "up", "subset"} (strings)."""
+    if isinstance(spec, str):
+        spec = {"file": spec}
+    if not isinstance(spec, Mapping) or "file" not in spec:
+        raise _err(where, "field 'rig' must be a file name or {\"file\": ..., \"units\", \"up\", \"subset\"}")
+    for key in ("units", "up", "subset"):
+        if not isinstance(spec.get(key, ""), str):
+            raise _err(where, f"field 'rig': {key!r} must be a string, got {spec[key]!r}")
+    return spec
+
+
 class PhotoCapture:
     """A photo capture folder opened lazily: the JSON files are read and checked,
     and every image file is checked to exist; no pixels are read until asked.
@@ -154,13 +166,11 @@ class PhotoCapture:
         version = info.get("version")
         if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= VERSION:
             raise _err(where, f"field 'version' must be an integer 1..{VERSION}, got {version!r}")
-        self.metadata = dict(info.get("metadata", {}) or {})
-        # the rig
-        rig_spec = info.get("rig", "rig.json")
-        if isinstance(rig_spec, str):
-            rig_spec = {"file": rig_spec}
-        if not isinstance(rig_spec, Mapping) or "file" not in rig_spec:
-            raise _err(where, "field 'rig' must be a file name or {\"file\": ..., \"units\", \"up\", \"subset\"}")
+        metadata = info.get("metadata") or {}
+        if not isinstance(metadata, Mapping):
+            raise _err(where, f"field 'metadata' must be a JSON object, got {type(metadata).__name__}")
+        self.metadata = dict(metadata)
+        rig_spec = _rig_spec(info.get("rig", "rig.json"), where)
         self.rig_file = _inside(self.folder, rig_spec["file"], f"{where}: field 'rig'")
         self.rig = stage.load_rig_file(self.rig_file, units=rig_units or rig_spec.get("units"),
                                        up=rig_up or rig_spec.get("up"),
@@ -207,9 +217,11 @@ class PhotoCapture:
                 raise _err(where, f"field 'images' lists {len(pattern)} files for {L} lights in the rig")
             rels = pattern
         elif isinstance(pattern, str):
+            path_template(pattern, {"camera": str(v["camera"]), "light": 0, "light1": 1}, (),
+                          f"{where}: field 'images'")
             try:
                 rels = [pattern.format(camera=v["camera"], light=l, light1=l + 1) for l in range(L)]
-            except (KeyError, IndexError, ValueError) as err:
+            except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
                 raise _err(where, f"field 'images' pattern {pattern!r} is not valid (fields: camera, light, "
                                   f"light1; {err})") from None
         else:

@@ -11,7 +11,7 @@ import numpy as np
 import png
 
 from ._atomic import atomic_write_bytes
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, check_image_size
 
 __all__ = ["read_png", "write_png"]
 
@@ -19,17 +19,28 @@ __all__ = ["read_png", "write_png"]
 def read_png(path: str | os.PathLike) -> np.ndarray:
     """Read a PNG as ``[H, W, C]`` uint8 (bit depth <= 8) or uint16 (bit depth 16),
     values as stored (no gamma decoding). Palettes are expanded to RGB(A); bit
-    depths 1, 2 and 4 are rescaled to the 0..255 range."""
+    depths 1, 2 and 4 are rescaled to the 0..255 range. Raises
+    ``ImageFormatError`` naming the file when it is not a readable PNG (bad
+    signature, CRC, zlib stream, truncation) or declares more than
+    ``MAX_IMAGE_PIXELS`` (checked before any row is decoded)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such PNG file")
+    # From memory, not the file: pypng reads each chunk with one read(length), and a file object allocates
+    # the declared length (up to 2^31 bytes in a corrupt file) before finding the file shorter.
+    data = path.read_bytes()
     try:
-        with open(path, "rb") as fh:  # pypng leaves a file it opened itself unclosed
-            w, h, rows, info = png.Reader(file=fh).asDirect()
-            dtype = np.uint16 if info["bitdepth"] > 8 else np.uint8
-            arr = np.vstack([np.asarray(r, dtype=dtype)[None] for r in rows])
-    except (png.Error, ValueError, EOFError, OSError) as err:
-        raise ImageFormatError(f"{path}: corrupt or truncated PNG ({err})") from err
+        w, h, rows, info = png.Reader(bytes=data).asDirect()
+        # The header's size, before any row is decoded (a corrupt IHDR declares up to 2^31 x 2^31).
+        check_image_size(path, h, w, info["planes"], "the PNG header")
+        dtype = np.uint16 if info["bitdepth"] > 8 else np.uint8
+        arr = np.vstack([np.asarray(r, dtype=dtype)[None] for r in rows])
+    except (ImageFormatError, MemoryError):
+        raise
+    # pypng is a pure-Python decoder: a corrupt file surfaces as its own errors, zlib.error, or whatever a
+    # mangled chunk makes its parsing code raise; all of them mean the same thing here.
+    except Exception as err:
+        raise ImageFormatError(f"{path}: corrupt or truncated PNG ({type(err).__name__}: {err})") from err
     planes = info["planes"]
     if arr.shape != (h, w * planes):
         raise ImageFormatError(f"{path}: PNG pixel data has shape {arr.shape}, expected {(h, w * planes)}")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..image import srgb_decode
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, check_image_size
 from ._png import read_png
 
 __all__ = ["HEAD_SKIN_FILES", "head_skin_textures", "read_texture"]
@@ -40,7 +40,8 @@ def read_texture(path: str | os.PathLike, *, srgb: bool = True) -> np.ndarray:
     other formats through Pillow (palette and CMYK images are converted to
     RGB(A); a float ``F``-mode TIFF is returned as stored, never decoded).
     Raises :class:`ImageFormatError` (a ValueError) naming the file when it is
-    missing or not a readable image.
+    missing, not a readable image, or declares more than ``MAX_IMAGE_PIXELS``
+    (checked from the header, before decoding).
     """
     path = Path(path)
     if not path.is_file():
@@ -67,7 +68,8 @@ def _read_pillow(path: Path) -> tuple[np.ndarray, bool]:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as im:
+        with Image.open(path) as im:  # lazy: the header's size is known before any pixel is decoded
+            check_image_size(path, im.height, im.width, len(im.getbands()), "the image header")
             im.load()
             if im.mode == "P":
                 im = im.convert("RGBA" if "transparency" in im.info else "RGB")
@@ -75,8 +77,14 @@ def _read_pillow(path: Path) -> tuple[np.ndarray, bool]:
                 im = im.convert("RGB" if im.mode != "1" else "L")
             mode = im.mode
             arr = np.asarray(im)
+    except (ImageFormatError, MemoryError):
+        raise
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
         raise ImageFormatError(f"{path}: not a readable image ({err})") from err
+    # Pillow's plugins parse a corrupt file with plain Python (struct.error, IndexError, TypeError,
+    # DecompressionBombError, ...): each means the file is not a readable image.
+    except Exception as err:
+        raise ImageFormatError(f"{path}: not a readable image ({type(err).__name__}: {err})") from err
     if arr.ndim == 2:
         arr = arr[..., None]
     if mode == "F":

@@ -145,7 +145,11 @@ def test_capture_image_paths_stay_inside_the_folder(tmp_path, capture):
     shutil.copytree(folder / "views", outside)
     for k, files in enumerate(["../outside/v{view:03d}/l{light:03d}.exr",
                                str(outside) + "/v{view:03d}/l{light:03d}.exr", "views/v{view.real}/l{light:03d}.exr",
-                               "views/{x}/l{light:03d}.exr", "views/v000.exr", "views/v{view:03d}/l{light"]):
+                               "views/{x}/l{light:03d}.exr", "views/v000.exr", "views/v{view:03d}/l{light",
+                               # format specs that ints refuse, nest an attribute, build a megabyte path,
+                               # or give a NUL byte (which os calls refuse with their own ValueError)
+                               "views/{light:s}.exr", "views/{light:{view.real}}.exr", "{light:>999999}.exr",
+                               "views/\x00{light}.exr", "v/" * 600 + "{light}.exr"]):
         f = tmp_path / f"bad{k}"
         shutil.copytree(folder, f)
         info = json.loads((f / "capture.json").read_text())

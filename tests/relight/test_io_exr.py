@@ -191,3 +191,22 @@ def test_bad_shapes_and_names_are_refused(tmp_path, rgb):
         write_exr_channels(tmp_path / "x.exr", {"A": np.zeros((2, 2)), "B": np.zeros((2, 3))})
     with pytest.raises(FileNotFoundError, match="does not exist"):
         write_exr(tmp_path / "no" / "x.exr", rgb)
+
+
+def test_half_refuses_nan_and_overflow_together_and_float_refuses_float32_overflow(tmp_path):
+    """The reported write_exr(half=True) of [NaN, 1e6]: the NaN used to skip the overflow check and 1e6 was
+    stored as Inf. NaN is refused under half, and so is anything beyond 65504 (Inf included), NaN or not;
+    a float32 file refuses finite float64 values that would become Inf, and stores NaN / Inf as given."""
+    path = tmp_path / "h.exr"
+    with pytest.raises(ValueError, match=r"h\.exr: argument 'image', channel 'Y' has 1 NaN values; half=True"):
+        write_exr(path, np.array([[np.nan, 1e6]], np.float32), half=True)
+    for bad in (1e6, np.inf, -7e4):
+        with pytest.raises(ValueError, match=r"argument 'image', channel 'Y' has values up to .*beyond float16"):
+            write_exr(path, np.array([[bad, 1.0]], np.float32), half=True)
+    with pytest.raises(ValueError, match=r"argument 'channels', channel 'R' has values up to 1e\+300, beyond "
+                                         r"float32's"):
+        write_exr_channels(path, {"R": np.array([[1e300, 1.0]])})
+    write_exr(path, np.array([[np.inf, np.nan, 65504.0]]))  # float32 holds these as they are
+    np.testing.assert_array_equal(read_exr(path)[0, :, 0], [np.inf, np.nan, 65504.0])
+    write_exr(path, np.array([[65504.0, -65504.0]]), half=True)  # half's own maximum is accepted
+    np.testing.assert_array_equal(read_exr(path)[0, :, 0], [65504.0, -65504.0])

@@ -135,3 +135,27 @@ def test_png_errors(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
     with pytest.raises(ImageFormatError, match=r"bad\.png"):
         read_png(tmp_path / "bad.png")
+
+
+def test_rgbe_extremes_never_reach_the_renderer_as_inf(tmp_path):
+    """RGBE's largest pixel (255.5 * 2^119 = 1.7e38) decodes finite, but a sum of three is Inf in float32:
+    read_hdr returns it as stored and load_envmap refuses it (check_radiance's MAX_RADIANCE, 1e15), naming
+    the file and the pixel. write_hdr refuses a value past RGBE's range rather than wrapping its exponent
+    byte to 0 (the reported 3e38 that read back as black)."""
+    from relight.envmap import load_envmap
+
+    img = np.full((4, 8, 3), 0.5, np.float32)
+    path = tmp_path / "sun.hdr"
+    write_hdr(path, img, rle=False)
+    data = bytearray(path.read_bytes())
+    data[-4 * 8 * 4 + 4 * 3:-4 * 8 * 4 + 4 * 4] = bytes([255, 255, 255, 255])  # row 0, column 3
+    path.write_bytes(bytes(data))
+    pixels = read_hdr(path)
+    assert np.all(np.isfinite(pixels)) and float(pixels.max()) == np.float32(255.5 * 2.0**119)
+    with np.errstate(over="ignore"):
+        assert not np.isfinite(pixels[0, 3].sum())  # why it must not go further
+    with pytest.raises(ImageFormatError, match=r"sun\.hdr: environment radiance has 3 values above 1e\+15 "
+                                               r"\(first at index \(0, 3, 0\)"):
+        load_envmap(path)
+    with pytest.raises(ValueError, match=r"argument 'image' has values up to 3e\+38, beyond RGBE's largest"):
+        write_hdr(tmp_path / "big.hdr", np.full((1, 1, 3), 3e38))
