@@ -5,6 +5,7 @@ OLAT forward model (``incident_light``, ``to_local``, ``reflected_radiance``,
 ``subsurface_irradiance``, ``subsurface_exitance``) lives here and is shared
 by simulation, fitting and rendering. See docs/stage.md."""
 
+from ._camera import MAX_CAMERA_PIXELS as MAX_CAMERA_PIXELS
 from ._camera import Camera as Camera
 from ._camera import camera_from_dict as camera_from_dict
 from ._camera import camera_ring as camera_ring
@@ -29,6 +30,7 @@ from ._gradient import gradient_weights as gradient_weights
 from ._gradient import specular_normals as specular_normals
 from ._image import image_samples as image_samples
 from ._mesh import HEAD_SCALE_MM as HEAD_SCALE_MM
+from ._mesh import MAX_COORDINATE_MM as MAX_COORDINATE_MM
 from ._mesh import Mesh as Mesh
 from ._mesh import MeshReport as MeshReport
 from ._mesh import check_mesh as check_mesh

@@ -25,8 +25,9 @@ def read_json(path: str | os.PathLike, what: str = "JSON file", error: type[Valu
         raise FileNotFoundError(f"{path}: missing ({what})")
     try:
         return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise error(f"{path}: not valid JSON ({exc})") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        # ValueError: an integer of more than 4300 digits; RecursionError: nesting too deep to parse.
+        raise error(f"{path}: not valid JSON ({type(exc).__name__}: {str(exc)[:200]})") from exc
 
 
 def read_light_table(path: str | os.PathLike, what: str = "light table", cols: int = 3,

@@ -16,6 +16,9 @@ from ._diligent import diligent_capture as diligent_capture
 from ._diligent import is_diligent_folder as is_diligent_folder
 from ._diligent import lambert_normals as lambert_normals
 from ._diligent import read_diligent as read_diligent
+from ._errors import MAX_IMAGE_PIXELS as MAX_IMAGE_PIXELS
+from ._errors import MAX_PATH_CHARS as MAX_PATH_CHARS
+from ._errors import MAX_RADIANCE as MAX_RADIANCE
 from ._errors import ImageFormatError as ImageFormatError
 from ._errors import check_radiance as check_radiance
 from ._exr import ExrPart as ExrPart
@@ -26,6 +29,7 @@ from ._exr import read_exr_parts as read_exr_parts
 from ._exr import write_exr as write_exr
 from ._exr import write_exr_channels as write_exr_channels
 from ._exr import write_exr_parts as write_exr_parts
+from ._hdr import RGBE_MAX as RGBE_MAX
 from ._hdr import read_hdr as read_hdr
 from ._hdr import read_hdr_header as read_hdr_header
 from ._hdr import write_hdr as write_hdr
@@ -101,6 +105,10 @@ __all__ = [
     "ExrPart",
     "HEAD_SKIN_FILES",
     "ImageFormatError",
+    "RGBE_MAX",
+    "MAX_RADIANCE",
+    "MAX_PATH_CHARS",
+    "MAX_IMAGE_PIXELS",
     "FolderLockedError",
     "ForeignFolderError",
     "NoSpaceError",

@@ -369,6 +369,26 @@ def _version() -> str:
         return "unknown"
 
 
+def _read_header(meta_path: Path) -> tuple[dict, tuple[int, int]]:
+    """maps.json's contents and its resolution (H, W), checked: format, version, resolution."""
+    info = read_json(meta_path, "a map-set folder needs maps.json and the EXR maps")
+    fmt = info.get("format") if isinstance(info, dict) else None
+    if fmt != FORMAT:
+        raise ImageFormatError(f"{meta_path}: not a relight map set (format {fmt!r}, expected {FORMAT!r})")
+    version = info.get("version", VERSION)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ImageFormatError(f"{meta_path}: field 'version' must be a positive integer, got {version!r}")
+    if version > VERSION:
+        raise ImageFormatError(f"{meta_path}: format version {version} is newer than this reader ({VERSION})")
+    try:
+        res = tuple(int(r) for r in info["resolution"])
+        assert len(res) == 2 and min(res) > 0
+    except (KeyError, TypeError, ValueError, AssertionError):
+        raise ImageFormatError(f"{meta_path}: field 'resolution' must be [H, W] with positive sizes, "
+                               f"got {info.get('resolution')!r}") from None
+    return info, res
+
+
 def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     """Read and validate a texture set written by :func:`write_maps`.
 
@@ -389,19 +409,7 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         raise FileNotFoundError(f"{folder}: no such map-set folder")
     rs = _open_set(folder)  # opened first: the folder's identity then is what the files must still belong to
     meta_path = folder / "maps.json"
-    info = read_json(meta_path, "a map-set folder needs maps.json and the EXR maps")
-    fmt = info.get("format") if isinstance(info, dict) else None
-    if fmt != FORMAT:
-        raise ImageFormatError(f"{meta_path}: not a relight map set (format {fmt!r}, expected {FORMAT!r})")
-    if int(info.get("version", 0)) > VERSION:
-        raise ImageFormatError(f"{meta_path}: format version {info.get('version')} is newer than this reader "
-                               f"({VERSION})")
-    try:
-        res = tuple(int(r) for r in info["resolution"])
-        assert len(res) == 2 and min(res) > 0
-    except (KeyError, TypeError, ValueError, AssertionError):
-        raise ImageFormatError(f"{meta_path}: field 'resolution' must be [H, W] with positive sizes, "
-                               f"got {info.get('resolution')!r}") from None
+    info, res = _read_header(meta_path)
     chans = {}
     for key, (name, names) in FILES.items():
         path = folder / name
@@ -422,7 +430,12 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     coverage = chans["coverage"]["Y"] > 0.5
     if not coverage.any():
         raise ImageFormatError(f"{folder / 'coverage.exr'}: covers no texel")
-    model = np.rint(chans["model"]["Y"]).astype(np.int32)
+    model_y = chans["model"]["Y"]
+    off = coverage & (np.abs(model_y - np.rint(model_y)) > 1e-3)
+    if np.any(off):
+        raise ImageFormatError(f"{folder / 'model.exr'}: model indices must be integers (rungs of the ladder); "
+                               f"{int(off.sum())} covered texel(s) are not, e.g. {float(model_y[off][0])!r}")
+    model = np.rint(model_y).astype(np.int32)
     if np.any((model[coverage] < 0) | (model[coverage] >= len(MODELS))):
         raise ImageFormatError(f"{folder / 'model.exr'}: model indices must be in 0..{len(MODELS) - 1} "
                                f"({', '.join(MODELS)})")
