@@ -73,10 +73,15 @@ from ._phong import alpha_from_phong_exponent as alpha_from_phong_exponent
 from ._phong import blinn_phong_lobe as blinn_phong_lobe
 from ._phong import phong_exponent as phong_exponent
 from ._poulin_fournier import PoulinFournier as PoulinFournier
+from ._safe import GRAZING_ULPS as GRAZING_ULPS
+from ._safe import clamp_cos as clamp_cos
 from ._safe import dot as dot
+from ._safe import grazing_floor as grazing_floor
+from ._safe import lift_grazing as lift_grazing
 from ._safe import safe_acos as safe_acos
 from ._safe import safe_atan2 as safe_atan2
 from ._safe import safe_div as safe_div
+from ._safe import safe_hypot as safe_hypot
 from ._safe import safe_log as safe_log
 from ._safe import safe_normalize as safe_normalize
 from ._safe import safe_pow as safe_pow

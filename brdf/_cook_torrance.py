@@ -9,7 +9,7 @@ from jaxtyping import Array, ArrayLike, Float
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
 from ._distribution import ALPHA_MIN
 from ._fresnel import fresnel_complex
-from ._safe import dot, safe_normalize
+from ._safe import dot, lift_grazing, safe_div, safe_normalize
 
 
 class CookTorrance(AbstractBRDF):
@@ -47,21 +47,27 @@ class CookTorrance(AbstractBRDF):
         """f_r in 1/sr; 0 below the horizon."""
         wi, wo = check_directions("CookTorrance", wi, wo)
         check_module_rank(self, wi.ndim)
+        active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        # G / (cos_i cos_o) grows without bound at a grazing mirror pair: the cosines
+        # are raised to the grazing floor (brdf._safe.GRAZING_ULPS)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
         ci, co = cos_theta(wi), cos_theta(wo)
-        active = (ci > 0) & (co > 0)
-        ci_s = jnp.where(active, ci, 1.0)
-        co_s = jnp.where(active, co, 1.0)
-        wh = safe_normalize(wi + wo)
-        nh = jnp.where(active, cos_theta(wh), 1.0)  # n.h >= (ci + co)/2 > 0 where active
-        oh = jnp.where(active, dot(wo, wh), 1.0)
+        h = wi + wo
+        wh = safe_normalize(h)
+        nh = cos_theta(wh)  # n.h >= (ci + co)/2 > 0
+        oh = dot(wo, wh)
         m = jnp.maximum(self.m, ALPHA_MIN)
-        nh2 = nh * nh
-        tan2 = (1.0 - nh2) / nh2
-        # one exp for exp(-tan^2/m^2) / cos^4: finite gradients when n.h ~ 1e-7
-        d = jnp.exp(-tan2 / (m * m) - 2.0 * jnp.log(nh2)) / (jnp.pi * m * m)
-        g = jnp.minimum(1.0, jnp.minimum(2.0 * nh * co_s / oh, 2.0 * nh * ci_s / oh))
+        # tan^2(theta_h) from the unnormalised h, not (1 - nh^2)/nh^2: near the peak
+        # that cancels, and one float32 ulp of nh^2 over m^2 = 1e-8 multiplies D by e^12
+        # (slopes first, then squared: the partial derivatives stay within float32)
+        tx, ty = safe_div(h[..., 0:1], h[..., 2:3]), safe_div(h[..., 1:2], h[..., 2:3])
+        tan2 = tx * tx + ty * ty
+        # one exp for exp(-tan^2/m^2) / cos^4 = exp(-tan^2/m^2) (1 + tan^2)^2: finite
+        # gradients when n.h is small
+        d = jnp.exp(-tan2 / (m * m) + 2.0 * jnp.log1p(tan2)) / (jnp.pi * m * m)
+        g = jnp.minimum(1.0, safe_div(2.0 * nh * jnp.minimum(co, ci), oh))
         f = fresnel_complex(oh, self.eta_m, self.kappa_m, self.eta_a, self.kappa_a)
-        return jnp.where(active, f * d * g / (4.0 * ci_s * co_s), 0.0)
+        return jnp.where(active, f * d * safe_div(g, 4.0 * ci * co), 0.0)
 
     def fittable(self) -> dict[str, ParamSpec]:
         """``m`` in (ALPHA_MIN, 1) (sigmoid), ``eta_m`` >= 0.01 and ``kappa_m`` >= 0

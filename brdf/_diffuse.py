@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
-from ._safe import dot, safe_acos, safe_div, safe_normalize, safe_sqrt
+from ._safe import dot, lift_grazing, safe_acos, safe_div, safe_normalize, safe_sqrt
 
 VARIANTS = ("qualitative", "full")
 
@@ -49,17 +49,19 @@ class OrenNayar(AbstractBRDF):
         """f_r in 1/sr; 0 below the horizon."""
         wi, wo = check_directions("OrenNayar", wi, wo)
         check_module_rank(self, wi.ndim)
+        active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        # tan(b) ~ 1/cos(b) when both directions graze: the cosines raised to the grazing floor
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
         ci, co = cos_theta(wi), cos_theta(wo)
-        active = (ci > 0) & (co > 0)
         s2 = self.sigma * self.sigma
-        cmax = jnp.where(active, jnp.maximum(ci, co), 1.0)  # cos(b)
+        cmax = jnp.maximum(ci, co)  # cos(b)
         dot_xy = wi[..., 0:1] * wo[..., 0:1] + wi[..., 1:2] * wo[..., 1:2]  # sin_i sin_o cos(dphi)
         if self.variant == "qualitative":
             a_ = 1.0 - 0.5 * s2 / (s2 + 0.33)
             b_ = 0.45 * s2 / (s2 + 0.09)
             f = self.albedo / jnp.pi * (a_ + b_ * jnp.maximum(dot_xy, 0.0) / cmax)
             return jnp.where(active, f, 0.0)
-        cmin = jnp.where(active, jnp.minimum(ci, co), 1.0)  # cos(a)
+        cmin = jnp.minimum(ci, co)  # cos(a)
         alpha = safe_acos(cmin)
         beta = safe_acos(cmax)
         sin_i = safe_sqrt(1.0 - ci * ci)

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._base import ParamSpec, as_param
-from ._safe import safe_div, safe_sqrt
+from ._safe import safe_div, safe_hypot, safe_sqrt
 
 
 def schlick(cos_theta: Float[ArrayLike, "*#shape"], f0: Float[ArrayLike, "*#shape"]) -> Float[Array, "*shape"]:
@@ -87,7 +87,8 @@ def fresnel_complex(
 
     with n + i k the relative index (eta_m + i kappa_m) / (eta_a + i kappa_a) of the
     material m seen from the ambient medium a. The F_p line is evaluated
-    multiplied through by cos^2, so it is finite at normal and grazing incidence.
+    multiplied through by cos^2, so it is finite at normal and grazing incidence,
+    and both lines' numerators are written as sums of squares, so F >= 0 after rounding.
     For an absorbing ambient medium (kappa_a > 0) this is the usual relative-index
     approximation. Dimensionless, in [0, 1]; at normal incidence in vacuum it
     equals ((n - 1)^2 + k^2) / ((n + 1)^2 + k^2).
@@ -100,14 +101,15 @@ def fresnel_complex(
     c2 = c * c
     s2 = 1.0 - c2
     t1 = n * n - k * k - s2
-    a2pb2 = safe_sqrt(t1 * t1 + 4.0 * n * n * k * k)  # a^2 + b^2
+    a2pb2 = safe_hypot(t1, 2.0 * n * k)  # a^2 + b^2
     a = safe_sqrt(0.5 * (a2pb2 + t1))
-    term1 = a2pb2 + c2
-    term2 = 2.0 * a * c
-    r_s = safe_div(term1 - term2, term1 + term2, fallback=1.0)
-    term3 = a2pb2 * c2 + s2 * s2
-    term4 = term2 * s2
-    r_p = r_s * safe_div(term3 - term4, term3 + term4, fallback=1.0)
+    b2 = jnp.maximum(0.5 * (a2pb2 - t1), 0.0)
+    # numerators as sums of squares, ((a - cos)^2 + b^2 and (a cos - sin^2)^2 + b^2 cos^2):
+    # >= 0 after rounding, where term1 - term2 would cancel to -1e-8 (index matched, n = 1, k = 0)
+    r_s = safe_div((a - c) ** 2 + b2, (a + c) ** 2 + b2, fallback=1.0)
+    ac = a * c
+    b2c2 = b2 * c2
+    r_p = r_s * safe_div((ac - s2) ** 2 + b2c2, (ac + s2) ** 2 + b2c2, fallback=1.0)
     return 0.5 * (r_s + r_p)
 
 

@@ -12,7 +12,7 @@ from ._distribution import AbstractMicrofacetDistribution
 from ._fresnel import AbstractFresnel, SchlickFresnel
 from ._ggx import GGX
 from ._lambert import Lambert
-from ._safe import dot, safe_div, safe_normalize
+from ._safe import dot, lift_grazing, safe_div, safe_normalize
 from ._sum import Sum
 
 MASKINGS = ("smith", "smith_height_correlated", "v_groove")
@@ -124,6 +124,9 @@ class Microfacet(AbstractBRDF):
         wi, wo = check_directions("Microfacet", wi, wo)
         check_module_rank(self, wi.ndim)
         active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        # cosines raised to the grazing floor: V-groove's G / (cos_i cos_o) and the
+        # half vector's 1 / |wi + wo| stay bounded (see brdf._safe.GRAZING_ULPS)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
         wm = safe_normalize(wi + wo)
         cos_d = dot(wi, wm)
         f = self.distribution.D(wm) * self.fresnel(cos_d) * masking_over_cos(

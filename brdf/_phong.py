@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
 from ._distribution import ALPHA_MIN
-from ._safe import dot, safe_div, safe_normalize, safe_pow, safe_sqrt
+from ._safe import clamp_cos, dot, lift_grazing, safe_div, safe_normalize, safe_pow, safe_sqrt
 
 _RHO = ParamSpec(0.0, 1.0, "sigmoid")
 # The exponent is a scale parameter (1 and 1000 are both common): exp makes
@@ -68,8 +68,9 @@ def _mirror(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
 
 
 def _rv(wi, wo):
-    """cos(alpha) = dot(reflect(wi), wo), which is symmetric in wi and wo."""
-    return dot(_mirror(wi), wo)
+    """cos(alpha) = dot(reflect(wi), wo), which is symmetric in wi and wo, clipped
+    to [-1, 1] (brdf.clamp_cos: raised to the exponent, a value past 1 overflows)."""
+    return clamp_cos(dot(_mirror(wi), wo))
 
 
 def _init(owner, rho_d, rho_s, exponent):
@@ -103,10 +104,10 @@ class Phong(AbstractBRDF):
         """f_r in 1/sr; 0 below the horizon."""
         wi, wo = check_directions("Phong", wi, wo)
         check_module_rank(self, wi.ndim)
-        ci, co = cos_theta(wi), cos_theta(wo)
-        active = (ci > 0) & (co > 0)
-        ci_s = jnp.where(active, ci, 1.0)
-        f = self.rho_d / jnp.pi + self.rho_s * safe_pow(_rv(wi, wo), self.exponent) / ci_s
+        active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        # cos_i raised to the grazing floor keeps 1/cos_i bounded (brdf._safe.GRAZING_ULPS)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
+        f = self.rho_d / jnp.pi + self.rho_s * safe_pow(_rv(wi, wo), self.exponent) / cos_theta(wi)
         return jnp.where(active, f, 0.0)
 
     def fittable(self) -> dict[str, ParamSpec]:
@@ -141,6 +142,7 @@ class ModifiedPhong(AbstractBRDF):
         wi, wo = check_directions("ModifiedPhong", wi, wo)
         check_module_rank(self, wi.ndim)
         active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
         lobe = safe_pow(_rv(wi, wo), self.exponent)
         if self.normalized:
             lobe = lobe * (self.exponent + 2.0) / (2.0 * jnp.pi)
@@ -177,6 +179,7 @@ class BlinnPhong(AbstractBRDF):
         wi, wo = check_directions("BlinnPhong", wi, wo)
         check_module_rank(self, wi.ndim)
         active = (cos_theta(wi) > 0) & (cos_theta(wo) > 0)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)  # the half vector's 1/|wi + wo| bounded
         cos_h = cos_theta(safe_normalize(wi + wo))
         lobe = blinn_phong_lobe(cos_h, self.rho_s, self.exponent, self.normalized)
         return jnp.where(active, self.rho_d / jnp.pi + lobe, 0.0)

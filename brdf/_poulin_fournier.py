@@ -7,7 +7,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._base import AbstractBRDF, ParamSpec, as_param, check_directions, check_module_rank, cos_theta
-from ._safe import dot, safe_div, safe_pow, safe_sqrt
+from ._safe import clamp_cos, dot, lift_grazing, safe_div, safe_pow, safe_sqrt
 
 # The model's floor on the cylinders' height above the base plane (in cylinder
 # radii). At h -> 0 the cap's angular half-width t_max = 2 asin(sqrt(h / 2))
@@ -150,12 +150,12 @@ class PoulinFournier(AbstractBRDF):
         check_module_rank(self, wi.ndim)
         ci, co = cos_theta(wi), cos_theta(wo)
         active = (ci > 0) & (co > 0)
-        # masked lanes see the normal: every quantity below stays finite there, and
-        # so does its gradient (a non-unit stand-in could give r.wo > 1, and
+        # the cosines raised to the grazing floor (brdf._safe.GRAZING_ULPS) bound the
+        # 1/(cos_i cos_o) of the cap integral, and keep every quantity below finite in
+        # the masked lanes too, with its gradient; the lobe's cosines are clipped to 1
+        # (brdf.clamp_cos: for vectors that are not unit length r.wo can exceed 1, and
         # r.wo^exponent overflows)
-        normal = jnp.asarray([0.0, 0.0, 1.0], wi.dtype)
-        wi = jnp.where(active, wi, normal)
-        wo = jnp.where(active, wo, normal)
+        wi, wo = lift_grazing(wi), lift_grazing(wo)
         ci_s, co_s = cos_theta(wi), cos_theta(wo)
         wx, wy = wi[..., 0:1], wi[..., 1:2]
         vx, vy = wo[..., 0:1], wo[..., 1:2]
@@ -208,7 +208,7 @@ class PoulinFournier(AbstractBRDF):
         same_side = pos_i == pos_o
         base = jnp.where(same_side, jnp.minimum(base_i, base_o), jnp.maximum(base_i + base_o - d, 0.0))
         mirror_dot = ci_s * co_s - wx * vx - wy * vy  # reflect(wi, z).wo
-        flat = self.rho_d / jnp.pi + self.rho_s * (n + 2.0) / (2.0 * jnp.pi) * safe_pow(mirror_dot, n)
+        flat = self.rho_d / jnp.pi + self.rho_s * (n + 2.0) / (2.0 * jnp.pi) * safe_pow(clamp_cos(mirror_dot), n)
 
         f = (cap + flat * base) / period
         return jnp.where(active, jnp.maximum(f, 0.0), 0.0)
@@ -239,6 +239,6 @@ def _specular_panels(edges, wy, wz, vy, vz, wi_dot_wo, n, n_nodes):
         st, ct = jnp.sin(t), jnp.cos(t)
         ni = jnp.maximum(wy * st + wz * ct, 0.0)
         no = jnp.maximum(vy * st + vz * ct, 0.0)
-        lobe = safe_pow(2.0 * ni * no - wi_dot_wo, n)
+        lobe = safe_pow(clamp_cos(2.0 * ni * no - wi_dot_wo), n)
         total = total + jnp.sum(wgt * half * ni * no * lobe, axis=-1)
     return total

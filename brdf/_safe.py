@@ -8,6 +8,7 @@ the masked lane yields a finite value and a zero (not NaN) gradient.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -69,12 +70,62 @@ def safe_sqrt(x: ArrayLike) -> Array:
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
 
 
+@jax.custom_jvp
+def _quotient(num: Array, den: Array) -> Array:
+    ok = den != 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
+
+
+@_quotient.defjvp
+def _quotient_jvp(primals, tangents):
+    # d(n/d) = (dn - q dd) / d, written through the quotient q: JAX's own rule for
+    # division, -g n d^-2, forms g d^-2 first, which overflows float32 for a ratio of
+    # two small numbers (d = 1e-12, g = 1e18: inf, then inf * n with n ~ d) although
+    # the derivative itself is ~ g q / d, finite.
+    num, den = primals
+    d_num, d_den = tangents
+    ok = den != 0
+    den_s = jnp.where(ok, den, 1)
+    q = jnp.where(ok, num / den_s, 0)
+    inv = jnp.where(ok, 1 / den_s, 0)
+    return q, (d_num - q * d_den) * inv
+
+
+def _inexact(x: Array, like: Array) -> Array:
+    if jnp.issubdtype(x.dtype, jnp.inexact):
+        return x
+    return x.astype(like.dtype if jnp.issubdtype(like.dtype, jnp.inexact) else jnp.result_type(float))
+
+
 def safe_div(num: ArrayLike, den: ArrayLike, fallback: ArrayLike = 0.0) -> Array:
-    """num / den, returning ``fallback`` (and gradient 0) where den == 0."""
+    """num / den, returning ``fallback`` (and gradient 0) where den == 0.
+
+    The gradient is (dn - q dd) / den with q = num / den (a custom JVP): finite
+    whenever the quotient and 1/den are, also for a ratio of two numbers below
+    1e-19 in float32, where JAX's rule for division overflows."""
     num = jnp.asarray(num)
     den = jnp.asarray(den)
-    ok = den != 0
-    return jnp.where(ok, num / jnp.where(ok, den, 1), fallback)
+    num, den = _inexact(num, den), _inexact(den, num)
+    return jnp.where(den != 0, _quotient(num, den), fallback)
+
+
+@jax.custom_jvp
+def safe_hypot(x: ArrayLike, y: ArrayLike) -> Array:
+    """sqrt(x^2 + y^2) without overflow or underflow in the squares (``jnp.hypot``),
+    with the gradient (x, y) / hypot, bounded by 1, and 0 at the origin. The
+    plain sqrt(x^2 + y^2) has the gradient 0.5 / sqrt(x^2 + y^2) * 2x, whose
+    first factor overflows float32 times a large cotangent when x, y are small."""
+    return jnp.hypot(x, y)
+
+
+@safe_hypot.defjvp
+def _safe_hypot_jvp(primals, tangents):
+    x, y = primals
+    dx, dy = tangents
+    h = jnp.hypot(x, y)
+    ok = h > 0
+    h_s = jnp.where(ok, h, 1)
+    return h, jnp.where(ok, x / h_s, 0) * dx + jnp.where(ok, y / h_s, 0) * dy
 
 
 def dot(a: Float[Array, "*batch 3"], b: Float[Array, "*batch 3"]) -> Float[Array, "*batch 1"]:
@@ -128,9 +179,76 @@ def safe_pow(x: ArrayLike, p: ArrayLike) -> Array:
     return jnp.where(ok, jnp.exp(p * jnp.log(jnp.where(ok, x, 1))), 0)
 
 
-def safe_atan2(y: ArrayLike, x: ArrayLike) -> Array:
-    """atan2(y, x), 0 (gradient 0) at the origin where the angle is undefined."""
-    y = jnp.asarray(y)
-    x = jnp.asarray(x)
+@jax.custom_jvp
+def _atan2(y: Array, x: Array) -> Array:
     ok = (x != 0) | (y != 0)
     return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0), jnp.where(ok, x, 1)), 0)
+
+
+@_atan2.defjvp
+def _atan2_jvp(primals, tangents):
+    # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2), evaluated on (x, y) scaled by
+    # m = max(|x|, |y|): the squares of components ~1e-20 underflow float32 to 0
+    # (inf, then NaN), the scaled ones lie in [1, 2]. Where 1/m is not a normal
+    # float (m below the smallest normal number) the gradient is 0.
+    y, x = primals
+    dy, dx = tangents
+    m = jnp.maximum(jnp.abs(x), jnp.abs(y))
+    ok = m > jnp.finfo(m.dtype).tiny
+    m_s = jnp.where(ok, m, 1)
+    xs, ys = x / m_s, y / m_s
+    scale = jnp.where(ok, 1 / (m_s * (xs * xs + ys * ys)), 0)
+    return _atan2(y, x), (xs * dy - ys * dx) * scale
+
+
+def safe_atan2(y: ArrayLike, x: ArrayLike) -> Array:
+    """atan2(y, x), 0 (gradient 0) at the origin where the angle is undefined.
+    The gradient (x dy - y dx) / (x^2 + y^2) is evaluated on (x, y) scaled by their
+    larger magnitude (a custom JVP), so it does not underflow near the origin."""
+    y = jnp.asarray(y)
+    x = jnp.asarray(x)
+    y, x = _inexact(y, x), _inexact(x, y)
+    y, x = jnp.broadcast_arrays(y, x)
+    return _atan2(y, x)
+
+
+# The grazing floor, in ulps of 1. A shading-frame cosine is a dot product of
+# unit vectors rounded to the working precision, so its absolute error is a few
+# ulps of 1: below 8 ulps (9.5e-7 in float32, 1.8e-15 in float64) even its sign
+# is barely known, and the 1/cos and 1/cos^2 factors of Ward, Cook-Torrance,
+# V-groove masking, Phong and Oren-Nayar carry only rounding noise. Left alone
+# they overflow: f_r ~ 1/(alpha^2 cos^2) at a grazing mirror pair is 8e22 at
+# cos = 1e-8, alpha = 1e-4, and its gradient w.r.t. wi ~ 1/(alpha^2 cos^3)
+# exceeds float32's 3.4e38 below cos ~ 1e-11; the half vector's 1/|wi + wo| does
+# the same to the gradient of every half-vector model when both directions graze.
+# Raised to the floor, f_r <= ~1e19 and its gradients <= ~1e29 in float32
+# (measured over tests/brdf/test_nan_sweep.py's edge pairs).
+GRAZING_ULPS = 8
+
+
+def grazing_floor(dtype) -> float:
+    """The smallest cosine (z component) a model evaluates a direction above the
+    horizon at: GRAZING_ULPS ulps of 1 in the working float of ``dtype``
+    (9.5e-7 for float32, 1.8e-15 for float64); see GRAZING_ULPS for the reason."""
+    return GRAZING_ULPS * float(jnp.finfo(working_float(dtype)).eps)
+
+
+def lift_grazing(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """The direction a model evaluates: ``w`` with its z component (cos theta)
+    raised to :func:`grazing_floor`, one elementwise max: exactly ``w`` where
+    cos theta >= the floor, gradient 0 w.r.t. w_z below it. Directions at or below
+    the horizon are lifted too, so the lanes a model masks to 0 (it decides which
+    from the cosines before the lift) compute finite values and gradients, never
+    0 * inf = NaN."""
+    w = jnp.asarray(w)
+    floor = jnp.asarray([-jnp.inf, -jnp.inf, grazing_floor(w.dtype)], w.dtype)
+    return jnp.maximum(w, floor.reshape((1,) * (w.ndim - 1) + (3,)))
+
+
+def clamp_cos(x: ArrayLike) -> Array:
+    """A cosine computed as a dot product of (nominally) unit vectors, clipped to
+    [-1, 1]: rounding (or vectors that are not unit length) can take it past 1,
+    and a lobe cos^exponent with exponent up to 1e4 then overflows. The
+    gradient is 0 outside [-1, 1]."""
+    x = jnp.asarray(x)
+    return jnp.clip(x, -1.0, 1.0)

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from brdf import widest_float
+from brdf import safe_atan2, safe_div, safe_normalize, safe_sqrt, widest_float
 
 __all__ = [
     "EnvMap",
@@ -109,21 +109,34 @@ def latlong_solid_angles(height: int, width: int, dtype=None) -> Float[Array, "H
     return jnp.broadcast_to(_row_solid_angles(height, width, dt)[:, None], (height, width))
 
 
+def _azimuth(x: Array, w: Array) -> Array:
+    """atan2(x, w) with its value at x = w = 0 (the poles) kept as arctan2 gives it
+    (pi or 0 by the signs of the zeros, so lookups there are unchanged) and its
+    gradient there 0; elsewhere brdf.safe_atan2, whose gradient does not
+    underflow next to the poles."""
+    ok = (x != 0) | (w != 0)
+    return jnp.where(ok, safe_atan2(x, w), jax.lax.stop_gradient(jnp.arctan2(x, w)))
+
+
 @jax.jit
 def direction_to_latlong(d: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"]]:
     """World direction -> continuous pixel coordinates ``(row, col)`` of a map of
     height 1 and width 1 (i.e. ``v in [0, 1]`` down, ``u in [0, 1)`` right);
     multiply by (H, W) and subtract 0.5 for pixel-centre coordinates.
 
-    ``d`` need not be normalised (zero vectors map to the zenith).
+    ``d`` need not be normalised (zero vectors map to the zenith). Values and
+    gradients are finite for every finite ``d``: the polar angle is
+    atan2(|d_xz|, d_y) (accurate next to the poles, where acos(d_y / |d|) loses
+    half the digits, and with gradient 0 at them, where acos' is infinite); the
+    azimuth's gradient at the poles, where it is undefined, is 0; ``d`` is first
+    divided by its largest component, so that no square overflows or underflows.
     """
     d = jnp.asarray(d)
+    m = jnp.maximum(jnp.maximum(jnp.abs(d[..., 0:1]), jnp.abs(d[..., 1:2])), jnp.abs(d[..., 2:3]))
+    d = safe_div(d, m)  # the zero vector stays 0 (gradient 0)
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    r = jnp.sqrt(x * x + y * y + z * z)
-    ok = r > 0
-    cos_t = jnp.where(ok, y / jnp.where(ok, r, 1), 1.0)
-    v = jnp.arccos(jnp.clip(cos_t, -1.0, 1.0)) / jnp.pi
-    u = (jnp.arctan2(x, -z) + jnp.pi) / (2 * jnp.pi)
+    v = safe_atan2(safe_sqrt(x * x + z * z), y) / jnp.pi
+    u = (_azimuth(x, -z) + jnp.pi) / (2 * jnp.pi)
     u = jnp.where(u >= 1.0, u - 1.0, u)
     return v, u
 
@@ -167,12 +180,13 @@ def sample_latlong(
 def rotation_matrix(axis: Float[ArrayLike, " 3"], angle: Float[ArrayLike, ""]) -> Float[Array, "3 3"]:
     """Rotation by ``angle`` radians about ``axis`` (right-handed, Rodrigues' formula).
 
-    ``axis`` need not be normalised; a zero axis gives the identity.
+    ``axis`` need not be normalised (any finite length); a zero axis gives the
+    identity, with a zero gradient with respect to the axis.
     """
     axis = jnp.asarray(axis)
-    n = jnp.sqrt(jnp.sum(axis * axis))
-    ok = n > 0
-    k = jnp.where(ok, axis / jnp.where(ok, n, 1), 0.0)
+    # divided by its largest component first, so that |axis|^2 neither overflows nor underflows;
+    # the zero axis stays the zero vector (gradient 0)
+    k = safe_normalize(safe_div(axis, jnp.max(jnp.abs(axis))))
     kx, ky, kz = k[0], k[1], k[2]
     zero = jnp.zeros_like(kx)
     K = jnp.stack([jnp.stack([zero, -kz, ky]), jnp.stack([kz, zero, -kx]), jnp.stack([-ky, kx, zero])])

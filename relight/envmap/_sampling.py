@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from brdf import widest_float
+from brdf import safe_sqrt, widest_float
 
 from ._latlong import EnvMap, direction_to_latlong, latlong_solid_angles
 
@@ -105,7 +105,7 @@ def sample_envmap(
     t0 = jnp.pi * row_f / h
     t1 = jnp.pi * (row_f + 1) / h
     cos_t = jnp.cos(t0) + fy * (jnp.cos(t1) - jnp.cos(t0))
-    sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))
+    sin_t = safe_sqrt(1.0 - cos_t * cos_t)  # gradient 0, not inf, at the poles
     phi = 2 * jnp.pi * (col_f + fx) / w - jnp.pi
     d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
     dom = latlong_solid_angles(h, w, dt)[row, 0]
