@@ -31,8 +31,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import secrets
 import shutil
-import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -43,6 +43,7 @@ import stage
 from ._errors import ImageFormatError, check_image_size, check_radiance, path_inside, path_template
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
+from ._resultset import MANIFEST, _folder_mode, open_result_set, swap_into
 
 __all__ = ["CaptureData", "CaptureReader", "open_capture", "read_capture", "write_capture"]
 
@@ -111,24 +112,20 @@ def _count(info: Mapping, key: str, where) -> int:
 
 @contextlib.contextmanager
 def _atomic_folder(folder: Path) -> Iterator[Path]:
-    """Yield a temporary folder next to ``folder``; on success swap it into place
-    (an existing capture is moved aside, then deleted). The project's only
-    folder-level swap: single files go through ``brdf.atomic_path``."""
+    """Yield a temporary folder next to ``folder`` (mode 0o777 less the umask);
+    on success swap it into place with the result sets' one folder swap
+    (:func:`relight.io._resultset.swap_into`: an atomic exchange, or the old
+    capture moved aside, then deleted). Single files go through ``brdf.atomic_path``."""
     parent = folder.parent if str(folder.parent) else Path(".")
     if not parent.is_dir():
         raise FileNotFoundError(f"{folder}: cannot write, folder {parent} does not exist")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=parent))
+    tmp = parent / f".{folder.name}.{secrets.token_hex(6)}.tmp"
+    tmp.mkdir(mode=_folder_mode())
     try:
         yield tmp
-        if folder.exists():
-            if not (folder / "capture.json").is_file():
-                raise FileExistsError(f"{folder}: exists and is not a capture folder; refusing to replace it")
-            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=parent))
-            os.replace(folder, old / "capture")
-            os.replace(tmp, folder)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, folder)
+        if folder.exists() and not (folder / "capture.json").is_file():
+            raise FileExistsError(f"{folder}: exists and is not a capture folder; refusing to replace it")
+        swap_into(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -276,6 +273,10 @@ class CaptureReader:
         self.folder = Path(folder)
         if not self.folder.is_dir():
             raise FileNotFoundError(f"{self.folder}: no such capture folder")
+        # A capture written as a result set (relight simulate): its JSON files must be the set's own.
+        if (self.folder / MANIFEST).is_file():
+            rs = open_result_set(self.folder)
+            rs.check([n for n in ("capture.json", "rig.json", "cameras.json") if n in rs.files])
         where = self.folder / "capture.json"
         info = _check_info(_load_json(where), where)
         self.n_views, self.n_lights = info["n_views"], info["n_lights"]

@@ -384,8 +384,11 @@ def open_result_set(folder: str | os.PathLike, kind: str | Sequence[str] | None 
         raise ResultSetError(f"{path}: not valid JSON ({err})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ResultSetError(f"{path}: not a relight result-set manifest")
-    if int(doc.get("version", 0)) > VERSION:
-        raise ResultSetError(f"{path}: version {doc.get('version')} is newer than this reader ({VERSION})")
+    version = doc.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ResultSetError(f"{path}: field 'version' must be a positive integer, got {version!r}")
+    if version > VERSION:
+        raise ResultSetError(f"{path}: version {version} is newer than this reader ({VERSION})")
     if not isinstance(doc.get("files"), dict):
         raise ResultSetError(f"{path}: field 'files' must be a table")
     kinds = (kind,) if isinstance(kind, str) else tuple(kind or ())
