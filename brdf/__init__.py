@@ -66,6 +66,12 @@ from ._microfacet import lambert_ggx as lambert_ggx
 from ._microfacet import smith_g2_height_correlated_over_cos as smith_g2_height_correlated_over_cos
 from ._microfacet import smith_g2_separable_over_cos as smith_g2_separable_over_cos
 from ._microfacet import v_groove_g2_over_cos as v_groove_g2_over_cos
+from ._nbrdf import NBRDF as NBRDF
+from ._nbrdf import directional_albedo_half as directional_albedo_half
+from ._nbrdf import load_nbrdf as load_nbrdf
+from ._nbrdf import nbrdf_encoding as nbrdf_encoding
+from ._nbrdf import nbrdf_folder as nbrdf_folder
+from ._nbrdf import nbrdf_names as nbrdf_names
 from ._phong import BlinnPhong as BlinnPhong
 from ._phong import ModifiedPhong as ModifiedPhong
 from ._phong import Phong as Phong

@@ -13,7 +13,7 @@ holds every public model to that.
 from __future__ import annotations
 
 import abc
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -95,7 +95,13 @@ class AbstractBRDF(eqx.Module):
     Subclasses are final equinox Modules whose array fields are the physical
     parameters, each of shape ``[*batch, C]``, ``[*batch, 1]`` (the same rank as
     the directions, since rank promotion raises) or 0-d.
+
+    ``per_sample`` (class attribute): False for models whose arrays are one
+    table or network shared by every sample (MERL, NBRDF), so a sample chunk
+    never slices them even when an axis happens to match the sample count.
     """
+
+    per_sample: ClassVar[bool] = True
 
     @abc.abstractmethod
     def __call__(

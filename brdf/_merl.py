@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -167,6 +168,7 @@ def read_merl(path: str | os.PathLike, interpolation: str = "nearest") -> MERL:
 
 
 class MERL(AbstractBRDF):
+    per_sample: ClassVar[bool] = False  # one table for every sample
     """A tabulated isotropic BRDF on MERL's grid (Matusik et al. 2003, "A
     data-driven reflectance model"). ``table`` [3, 90, 90, 180] holds f_r in 1/sr;
     missing (negative) entries evaluate to 0.

@@ -120,9 +120,13 @@ def _fused_chunk(terms, subsurface, sss_weight, rig_chunk: Rig, surface: Surface
 
 
 def _take_samples(tree, P: int, idx):
-    """Rows ``idx`` of every array leaf whose leading axis is the sample axis (length P)."""
+    """Rows ``idx`` of every array leaf whose leading axis is the sample axis
+    (length P); a BRDF whose arrays are shared by every sample
+    (``per_sample = False``: MERL, NBRDF) is kept whole."""
+    shared = lambda x: isinstance(x, brdf.AbstractBRDF) and not x.per_sample  # noqa: E731
     return jax.tree_util.tree_map(
-        lambda x: x[idx] if hasattr(x, "ndim") and x.ndim >= 1 and x.shape[0] == P else x, tree)
+        lambda x: x if shared(x) else (x[idx] if hasattr(x, "ndim") and x.ndim >= 1 and x.shape[0] == P else x),
+        tree, is_leaf=shared)
 
 
 def _traced(*trees) -> bool:

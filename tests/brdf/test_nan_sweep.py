@@ -167,6 +167,15 @@ def _merl_table(dtype):
     return jnp.asarray(t, dtype)
 
 
+def _nbrdf(dtype):
+    # Random weights at the scale of the trained networks: the sweep is about
+    # the encoding and the exp - 1 output, not one material.
+    rng = np.random.default_rng(4)
+    shapes = {"kernel_1": (6, 21), "bias_1": (21,), "kernel_2": (21, 21), "bias_2": (21,), "kernel_3": (21, 3),
+              "bias_3": (3,)}
+    return brdf.NBRDF(**{k: jnp.asarray(rng.normal(0.0, 0.5, s), dtype) for k, s in shapes.items()})
+
+
 # family -> function(params, dtype) -> {variant label: model}
 FAMILIES = {
     brdf.Lambert: lambda p, dt: {"": brdf.Lambert(p(RHO, c=3))},
@@ -204,6 +213,7 @@ FAMILIES = {
                                 p((1e-7, brdf._poulin_fournier.H_MIN, 1.0, "logrand"), 1e-6, 1.0)),
     },
     brdf.MERL: lambda p, dt: {i: brdf.MERL(_merl_table(dt), i) for i in _merl.INTERPOLATIONS},
+    brdf.NBRDF: lambda p, dt: {"": _nbrdf(dt)},
 }
 
 
