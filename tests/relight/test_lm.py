@@ -29,11 +29,14 @@ def test_linear_least_squares_is_solved_to_rounding():
     sol = optx.least_squares(lambda y, _: A @ y - b, NormalLevenbergMarquardt(rtol=1e-10, atol=1e-12),
                              jnp.zeros(5), max_steps=50)
     want = np.linalg.lstsq(A, b, rcond=None)[0]
-    # Damped steps on a quadratic: mu shrinks by 3x per accepted step, so the
-    # iterates reach the Gauss-Newton solution geometrically.
-    np.testing.assert_allclose(np.asarray(sol.value), want, rtol=1e-8, atol=1e-10)
+    cost = lambda y: 0.5 * np.sum((A @ np.asarray(y) - b) ** 2)  # noqa: E731
+    # rtol bounds the relative cost left to gain: the cost is the least-squares
+    # minimum's to 1e-9 (measured 3e-14), y within ~sqrt(rtol) of the solution
+    # (measured 4e-7 relative), in a few damped steps (measured 3).
+    assert cost(sol.value) <= cost(want) * (1 + 1e-9)
+    np.testing.assert_allclose(np.asarray(sol.value), want, rtol=0, atol=1e-5 * np.abs(want).max())
     assert sol.result == optx.RESULTS.successful
-    assert int(sol.stats["num_steps"]) < 20
+    assert int(sol.stats["num_steps"]) < 10
 
 
 @pytest.mark.parametrize("jac", ["fwd", "normal"])
@@ -80,11 +83,13 @@ def test_agrees_with_optimistix_levenberg_marquardt_under_vmap():
     # rows; at 1e-8 all but one converge (measured: 10-32 steps, one at 400).
     ref, ref_steps, ref_ok = solve(optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10))
     assert np.all(np.asarray(ok))
-    # Both reach the unique minimum of each smooth problem (measured 5e-9).
+    # Both reach the unique minimum of each smooth problem (measured 7e-7: ours
+    # stops once less than rtol of the cost is left to gain).
     both = np.asarray(ref_ok)
     assert both.sum() >= 12
-    np.testing.assert_allclose(np.asarray(ours)[both], np.asarray(ref)[both], rtol=1e-6, atol=1e-8)
-    # One evaluation per step and Nielsen's damping: fewer steps (measured 160 vs 248 on the 15 rows both converge on).
+    np.testing.assert_allclose(np.asarray(ours)[both], np.asarray(ref)[both], rtol=0, atol=1e-5)
+    # One evaluation per step, Nielsen's damping and the cost-left test: fewer
+    # steps (measured 78 vs 248 on the 15 rows both converge on).
     assert np.asarray(steps)[both].sum() < np.asarray(ref_steps)[both].sum()
 
 
