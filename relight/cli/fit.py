@@ -668,6 +668,8 @@ def _report(fitted, surface, capture_dir: Path, times) -> dict:
         r["model_counts"] = {m: int(c) for m, c in zip(MODELS, counts, strict=False)}
     if hasattr(fitted, "unresolved"):
         r["unresolved_fraction"] = float(np.mean(np.asarray(fitted.unresolved)))
+    if hasattr(fitted, "ambiguous"):
+        r["ambiguous_fraction"] = float(np.mean(np.asarray(fitted.ambiguous)))
     truth_dir = capture_dir / "truth"
     if is_map_set(truth_dir) and not (~failed).any():
         # Every texel flagged (e.g. a 12-light dome leaves fewer than 8 valid lights a texel): nothing to compare.
@@ -694,6 +696,10 @@ def _report_md(r: dict) -> str:
              f"than 8 valid lights). Median RMS residual {r['residual_rms_median']} (unflagged texels); over the "
              f"{r['observed_samples']} texels with observations, median steps {r['steps_median']:.0f} and median "
              f"valid observations {r['observed_median']:.0f}.", ""]
+    if r.get("ambiguous_fraction"):
+        lines += [f"{100 * r['ambiguous_fraction']:.2f}% of the texels are ambiguous (`Fit.ambiguous`: a diffuse "
+                  "albedo 1-sigma above 10%; at low signal to noise a broad grey lobe can take part of the diffuse "
+                  "term, so their albedo may read dark).", ""]
     if r.get("against_truth") is None and "against_truth" in r:
         lines += ["Every texel is flagged, so there is no comparison against the simulated truth.", ""]
     elif "against_truth" in r:

@@ -55,6 +55,8 @@ def test_fit_recovers_the_simulated_truth(pipeline):
     assert truth["diffuse_albedo_rel_error_median"] < 0.02
     assert truth["roughness_rel_error_median"] < 0.10
     assert report["failed_fraction"] < 0.1
+    # Noise-free: no albedo is loose enough to be called ambiguous (1-sigma above 10%).
+    assert report["ambiguous_fraction"] < 0.02
     tex, info = read_maps(maps)
     assert tex.resolution == (RES, RES) and info["bundled"] == "head"
     assert tex.coverage.sum() == report["samples"]
