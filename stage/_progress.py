@@ -4,8 +4,13 @@ A progress callback is any callable ``progress(phase, done, total)``:
 ``phase`` a short name of what is running ("light visibility", "simulate",
 "fit ggx", "shading"), ``done`` the units of that phase finished so far
 (cumulative, not an increment), ``total`` the units the phase will take (None
-when unknown). A phase starts with ``done = 0``. Library functions take
-``progress=None`` (silent); the CLI passes progress bars.
+when unknown). A phase starts with ``done = 0``, reported before any of its
+work (and so before its first JIT compile); each phase keeps its own count and
+total, and phases may interleave (a fit's rungs over its blocks). A consumer
+should time a phase's rate from its first ``done > 0``: the first unit pays
+the compile (the CLI's bars read "compiling" until then). Library functions
+take ``progress=None`` (silent); the CLI passes progress bars
+(``relight/cli/_common.py``'s ``Bar``).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The ``relight`` command line: ``relight <command> [options]``.
 
 Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
-``--camera``, ``--method``, ``--resolution``, ``--quiet``; see docs/cli.md):
+``--camera``, ``--resolution``, ``--quiet``; see docs/cli.md; ``relight --version``):
 
 * ``simulate``: a texel-space OLAT capture of a mesh into a capture folder;
 * ``fit``: reflectance maps from a capture folder (texture set + Mitsuba scene);
@@ -10,6 +10,7 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``demo``: simulate, fit and relight the bundled head in one go;
 * ``info``: versions, devices and bundled data.
 
+``-q`` / ``--quiet`` hides progress bars, ``-qq`` the one-line summary too.
 Misuse prints a usage line and exits 2; a bad input file prints
 ``relight <command>: error: <file>: <problem>`` and exits 1 (no traceback).
 
@@ -23,39 +24,85 @@ programs instead of compiling them (docs/figures/compile_cache.md).
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
-from . import convert as _cli_convert
-from . import demo as _cli_demo
-from . import fit as _cli_fit
-from . import info as _cli_info
-from . import render as _cli_render
-from . import simulate as _cli_simulate
-from ._common import CLIError, cache_dir, compile_cache
+# The commands in the order ``relight --help`` lists them, each with its one-line help: the top-level parser is
+# built from this table alone, so ``relight --help`` / ``--version`` import no command module (and no JAX); the
+# one command named on the line is imported to build its own parser (each module has ``add_parser(subparsers)``
+# and ``run(args)`` and imports no other command). tests/relight/test_cli_ux.py checks these lines against the
+# modules' own.
+COMMANDS = (
+    ("simulate", "simulate an OLAT capture of a mesh (texel space) into a capture folder"),
+    ("fit", "fit reflectance maps to a capture folder; write a texture set + Mitsuba scene"),
+    ("render", "relight a capture (image-based) or a fitted map set (model-based)"),
+    ("convert", "capture folder <-> capture store (.zarr, chunked Zarr v3)"),
+    ("demo", "simulate, fit and relight the bundled textured head (built-in defaults)"),
+    ("info", "versions, devices, bundled data and the shared data folder"),
+)
+NAMES = tuple(name for name, _ in COMMANDS)
 
-# The commands in the order ``relight --help`` lists them; each module has
-# ``add_parser(subparsers)`` and ``run(args)`` and imports no other command.
-COMMANDS = (_cli_simulate, _cli_fit, _cli_render, _cli_convert, _cli_demo, _cli_info)
+
+def version() -> str:
+    """The installed ``lightstage-relight`` distribution's version ("unknown" when not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("lightstage-relight")
+    except PackageNotFoundError:
+        return "unknown"
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_module(name: str):
+    """``relight.cli.<name>``, imported on demand."""
+    return importlib.import_module(f".{name}", __name__)
+
+
+def _named_command(argv) -> str | None:
+    """The command ``argv`` names: its first word that is not an option or ``--cache-dir``'s value."""
+    skip = False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--cache-dir":
+            skip = True
+        elif not a.startswith("-"):
+            return a if a in NAMES else None
+    return None
+
+
+def build_parser(argv=None, commands=None) -> argparse.ArgumentParser:
+    """The ``relight`` parser; the full parser of each command in ``commands`` (default: the one ``argv``
+    names; "all": every command), a one-line placeholder for the others."""
+    if commands is None:
+        named = _named_command(sys.argv[1:] if argv is None else argv)
+        commands = () if named is None else (named,)
+    elif commands == "all":
+        commands = NAMES
     p = argparse.ArgumentParser(prog="relight",
                                 description="Light-stage simulation, reflectance fitting and relighting.")
+    p.add_argument("--version", action="version", version=f"relight {version()}")
     p.add_argument("--cache-dir", default=None, metavar="DIR",
                    help="JAX's persistent compilation cache folder ('off': none); default: $RELIGHT_CACHE_DIR, "
                         "else $XDG_CACHE_HOME/relight/jax (~/.cache/relight/jax)")
     sub = p.add_subparsers(dest="command", metavar="<command>")
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name, help in COMMANDS:
+        if name in commands:
+            command_module(name).add_parser(sub)
+        else:
+            sub.add_parser(name, help=help, add_help=False)
     return p
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_usage(sys.stderr)
         return 2
+    from ._common import CLIError, cache_dir, compile_cache
+
     try:
         # Before the command compiles anything: the cache is looked up at each compile.
         with compile_cache(cache_dir(args.cache_dir), args.command):

@@ -10,15 +10,15 @@ import argparse
 import os
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
-import skin_bssrdf
-import stage
+# JAX, stage, skin_bssrdf and relight.io are imported inside the functions that use them: a command's
+# ``--help`` builds its parser from this module without them (tests/relight/test_cli_ux.py).
 
-from ..io._json import write_json as _write_json
-from ..io._resultset import ForeignFolderError, result_set, writing
+# stage.POSITION_UNITS and stage.AXES (the rig-file flags' choices), spelled here so that building a parser
+# imports no JAX; tests/relight/test_cli_ux.py checks them against stage's.
+RIG_UNITS = ("mm", "cm", "m", "directions")
+RIG_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
 class CLIError(Exception):
@@ -26,43 +26,114 @@ class CLIError(Exception):
     ``relight <command>: error: <message>``, exit code 1."""
 
 
-class Bar:
-    """A progress bar (tqdm, on stderr) that is itself the ``progress`` callback
-    of every library call: ``progress(phase, done, total)`` (``stage.Progress``,
-    the project's one protocol): the bar follows the phase, its count and total
-    (a phase without a total is shown by name)."""
+# A phase's bar before its first unit is done: JAX is tracing and compiling, so a rate or an ETA from the
+# time spent so far would be one of hours (the first chunk pays the compile); it says "compiling" instead.
+def _waiting_format(total, label: str) -> str:
+    return f"{{desc}}: {{n_fmt}}{'/{total_fmt}' if total else ''} [{label}, {{elapsed}}]"
 
-    def __init__(self, total, desc, quiet, leave=False):
-        self._bar = tqdm(total=total, desc=desc, unit="it", leave=leave, disable=quiet, dynamic_ncols=True)
+
+class Bar:
+    """Progress bars (tqdm, on stderr) that are themselves the ``progress`` callback of every library call:
+    ``progress(phase, done, total)`` (``stage.Progress``, the project's one protocol). Each phase gets its
+    own bar with its own total (a rung of ``--model auto``, a subsurface pass), made when the phase first
+    reports and kept while its count goes on (a phase may span several blocks, interleaved with others).
+    Until a phase's first unit is done its bar reads ``compiling`` with no rate or ETA; from then on the
+    rate counts only the time since, so the compile does not enter the ETA. A phase without a total shows
+    its running count. ``quiet``: no bars at all. ``file``: the stream (default: tqdm's, stderr).
+    ``waiting``: what a bar says before its first unit ("compiling"; a reading phase: "reading").
+    ``tqdm_options``: passed to each tqdm (tests: ``mininterval=0, miniters=1`` to draw every report)."""
+
+    def __init__(self, total, desc, quiet, leave=False, file=None, waiting: str = "compiling", **tqdm_options):
+        self._quiet, self._leave, self._file, self._waiting = bool(quiet), leave, file, str(waiting)
+        self._options = {"mininterval": 0.5, "dynamic_ncols": True, **tqdm_options}
+        self._bars: dict[str, object] = {}
+        self._running: dict[str, bool] = {}
+        self._last = str(desc)
+        self._open(self._last, total, 0)
+
+    def _open(self, phase: str, total, done: int) -> None:
+        from tqdm.auto import tqdm
+
+        fmt = _waiting_format(total, self._waiting)
+        kw = {} if self._file is None else {"file": self._file}
+        self._bars[phase] = tqdm(total=total, desc=phase, unit="it", leave=self._leave, disable=self._quiet,
+                                 initial=int(done), bar_format=None if done else fmt, **self._options, **kw)
+        self._running[phase] = bool(done)
+
+    def _start_rate(self, phase: str, done: int) -> None:
+        """The first unit of ``phase`` is done: its bar shows rate and ETA, timed from now."""
+        b = self._bars[phase]
+        self._running[phase] = True
+        b.bar_format = None
+        if b.disable:
+            b.n = done
+            return
+        b.reset(total=b.total)  # the clock and the smoothed rate start now
+        b.n = b.last_print_n = b.initial = int(done)
+        b.refresh()
 
     def __enter__(self) -> Bar:
         return self
 
     def __exit__(self, *exc) -> None:
-        self._bar.close()
+        self.close()
+
+    def close(self) -> None:
+        for b in self._bars.values():
+            b.close()
 
     def update(self, n: int = 1) -> None:
-        self._bar.update(n)
+        """Add ``n`` units to the bar that last reported (the bar's own phase at first)."""
+        b = self._bars[self._last]
+        self(self._last, b.n + int(n), b.total)
 
     def __call__(self, phase: str, done: int, total: int | None) -> None:
-        if total is None:
-            self._bar.set_postfix_str(str(phase))
+        phase, done = str(phase), int(done)
+        self._last = phase
+        b = self._bars.get(phase)
+        if b is None:
+            first = next(iter(self._bars))
+            if len(self._bars) == 1 and self._bars[first].n == 0 and not self._running[first]:
+                # The command's own placeholder bar (nothing counted yet) becomes this phase's.
+                self._bars.pop(first).close()
+                self._running.pop(first)
+            self._open(phase, total, done)
             return
-        if total != self._bar.total:
-            self._bar.reset(total=total)
-        self._bar.set_description_str(str(phase), refresh=False)
-        self._bar.update(int(done) - self._bar.n)
+        if total != b.total:
+            b.total = total
+            if not self._running[phase]:
+                b.bar_format = _waiting_format(total, self._waiting)
+        if not self._running[phase] and done > 0:
+            self._start_rate(phase, done)
+            return
+        b.update(done - b.n)
 
 
-def bar(total, desc, quiet, leave=False) -> Bar:
-    return Bar(total, desc, quiet, leave)
+def bar(total, desc, quiet, leave=False, file=None, waiting: str = "compiling") -> Bar:
+    """A :class:`Bar` opened on ``desc`` with ``total`` units until a library phase reports."""
+    return Bar(total, desc, quiet, leave, file, waiting)
+
+
+def summary(args) -> bool:
+    """Whether the one-line summary prints: unless ``-qq`` (``--quiet`` alone hides the bars only)."""
+    return int(getattr(args, "quiet", 0) or 0) < 2
 
 
 def write_json(path, obj, indent: int = 2) -> None:
     """Reports and settings: ``relight.io``'s JSON writer (atomic; NaN and Inf refused), a failed write
     naming the file (a full disk as NoSpaceError)."""
+    from ..io._json import write_json as _write_json
+
     with writing(path):
         _write_json(path, obj, indent)
+
+
+def writing(path):
+    """``relight.io._resultset.writing``: a context in which a failed write names ``path`` (a full disk as
+    NoSpaceError)."""
+    from ..io._resultset import writing as _writing
+
+    return _writing(path)
 
 
 def write_settings(out: Path, command: str, args, **resolved) -> None:
@@ -71,7 +142,7 @@ def write_settings(out: Path, command: str, args, **resolved) -> None:
     write_json(Path(out) / "settings.json", {"command": f"relight {command}", "flags": flags, "resolved": resolved})
 
 
-def output_set(out: str | os.PathLike, command: str, quiet: bool = False, keep=(), create: bool = True,
+def output_set(out: str | os.PathLike, command: str, quiet: int | bool = 0, keep=(), create: bool = True,
                unhashed=(), legacy=None):
     """The result set ``--out`` of ``relight <command>`` (``relight.io._resultset.result_set``): the folder
     locked (a second writer fails naming it), refused unless it is absent, empty or an earlier output of this
@@ -81,12 +152,14 @@ def output_set(out: str | os.PathLike, command: str, quiet: bool = False, keep=(
     ``result_set``'s."""
     import sys
 
+    from ..io._resultset import result_set
+
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise CLIError(f"--out {out}: exists and is not a folder")
 
     def told(paths) -> None:
-        if not quiet:
+        if int(quiet or 0) < 2:
             print(f"relight {command}: warning: removed {len(paths)} leftover(s) of an interrupted run next to "
                   f"{out}: {', '.join(p.name for p in paths)}", file=sys.stderr)
 
@@ -113,7 +186,7 @@ def _own_or(command: str, legacy):
 def check_out(out: str | os.PathLike, command: str, keep=(), legacy=None) -> Path:
     """Refuse ``--out`` early (before any work) unless a later :func:`output_set` would take it: CLIError
     naming the folder and what it holds."""
-    from ..io._resultset import check_output_folder
+    from ..io._resultset import ForeignFolderError, check_output_folder
 
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -193,7 +266,8 @@ def add_image_size(p: argparse.ArgumentParser, default: int = 256, what: str = "
 
 def finish_parser(p: argparse.ArgumentParser, run) -> None:
     """What every working command ends with: ``--quiet`` and the function that runs it."""
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress bars; twice (-qq): no summary line either (warnings and errors still show)")
     p.set_defaults(func=guarded(run))
 
 
@@ -228,7 +302,7 @@ def mesh_from_args(args) -> dict:
         raise CLIError(f"--mesh {args.mesh or 'head'}: {exc}") from None
 
 
-def warn_mesh_size(command: str, mesh: stage.Mesh, rig: stage.Rig) -> None:
+def warn_mesh_size(command: str, mesh, rig) -> None:
     """Print ``relight.io.mesh_size_warning`` on stderr, if any."""
     import sys
 
@@ -242,20 +316,22 @@ def warn_mesh_size(command: str, mesh: stage.Mesh, rig: stage.Rig) -> None:
 def add_rig_file_flags(p: argparse.ArgumentParser) -> None:
     """``--rig-units`` / ``--rig-up``: what a rig file does not record (a .npy or
     .txt position table: ``stage.load_rig_file``), or an override of what it does."""
-    p.add_argument("--rig-units", default=None, choices=tuple(stage.POSITION_UNITS),
+    p.add_argument("--rig-units", default=None, choices=RIG_UNITS,
                    help="unit of the rig file's light positions (mm | cm | m | directions: distant lights); "
                         "needed for .npy/.txt rigs")
-    p.add_argument("--rig-up", default=None, choices=(*stage.AXES, "x", "y", "z"), metavar="AXIS",
+    p.add_argument("--rig-up", default=None, choices=(*RIG_AXES, "x", "y", "z"), metavar="AXIS",
                    help="the rig file's axis that points up, +x | -x | +y | -y | +z | -z (write a negative one as "
                         "--rig-up=-y); turned to the stage's +y; needed for .npy/.txt rigs")
 
 
-def parse_rig(spec: str, units: str | None = None, up: str | None = None) -> tuple[stage.Rig, str]:
+def parse_rig(spec: str, units: str | None = None, up: str | None = None) -> tuple:
     """``lsx`` (ICT Light Stage X, 346 near-field lights), ``dome:N`` (N distant
     lights: a geodesic dome when N = 10 * 4^s + 2, else a Fibonacci sphere) or a
     rig file: a rig.json (a capture folder's rig: positions/directions +
     intensities), or any file ``stage.load_rig_file`` reads (.npy / .txt
     tables, the Light Stage X table), with ``units`` / ``up`` as stated."""
+    import stage
+
     s = spec.strip()
     if s.lower() in ("lsx", "light_stage_x", "lightstage"):
         return stage.light_stage_x(), "ICT Light Stage X (346 lights, near field)"
@@ -282,6 +358,8 @@ def parse_rig(spec: str, units: str | None = None, up: str | None = None) -> tup
 
 
 def _is_lsx_table(p: Path) -> bool:
+    import stage
+
     if p.suffix.lower() != ".json" or not p.is_file():
         return False
     try:
@@ -296,8 +374,10 @@ def _is_lsx_table(p: Path) -> bool:
 FRONT_FOV_DEG = 11.0
 
 
-def front_camera(mesh: stage.Mesh, size: int) -> stage.Camera:
+def front_camera(mesh, size: int):
     """A telephoto camera on +z framing the mesh (for the bundled head: 1.3 m away, 11 degrees, as the demo)."""
+    import stage
+
     v = np.asarray(mesh.vertices, np.float64)
     lo, hi = v.min(0), v.max(0)
     c = 0.5 * (lo + hi)
@@ -306,10 +386,12 @@ def front_camera(mesh: stage.Mesh, size: int) -> stage.Camera:
     return stage.look_at((c[0], c[1], c[2] + dist), tuple(c), fov_deg=FRONT_FOV_DEG, width=size, height=size)
 
 
-def front_ring(mesh: stage.Mesh, n: int, size: int) -> tuple[stage.Camera, ...]:
+def front_ring(mesh, n: int, size: int) -> tuple:
     """1: :func:`front_camera`; n > 1: ``stage.camera_ring`` of n cameras at its
     distance over 80 degrees of azimuth around the front, aimed at the mesh's
     centre (the demo's and the photo round trip's several views)."""
+    import stage
+
     front = front_camera(mesh, size)
     if n == 1:
         return (front,)
@@ -320,10 +402,12 @@ def front_ring(mesh: stage.Mesh, n: int, size: int) -> tuple[stage.Camera, ...]:
                              fov_deg=FRONT_FOV_DEG, width=size, height=size, start_deg=-40.0, arc_deg=80.0)
 
 
-def parse_cameras(spec: str | None, mesh: stage.Mesh, size: int, default=None) -> tuple[stage.Camera, ...]:
+def parse_cameras(spec: str | None, mesh, size: int, default=None) -> tuple:
     """``front`` (see :func:`front_camera`) or a camera file (``stage.load_cameras``:
     ``stage.save_cameras``'s, or a capture folder's ``cameras.json``, or a folder
     holding one)."""
+    import stage
+
     if spec is None:
         if default is not None:
             return tuple(default)
@@ -341,13 +425,38 @@ def parse_cameras(spec: str | None, mesh: stage.Mesh, size: int, default=None) -
 # ------------------------------------------------------------------ previews
 
 
-def auto_exposure(img: np.ndarray) -> float:
-    """Stops that bring the 99th percentile of the positive pixels to 1."""
-    pos = np.asarray(img)[np.asarray(img) > 0]
-    return -float(np.log2(max(np.percentile(pos, 99), 1e-6))) if pos.size else 0.0
+def auto_exposure(img: np.ndarray, coverage: np.ndarray | None = None) -> float:
+    """The previews' one exposure rule, metered on the subject: :func:`relight.image.subject_exposure`
+    (without a coverage, the pixels with positive luminance are the subject)."""
+    from ..image._exposure import subject_exposure
+
+    return subject_exposure(img, coverage)
 
 
-def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, curve: str = "filmic") -> None:
+# Texel-space previews (one pixel a texel) are enlarged to at least this many pixels a side: a 48 x 48 grid
+# is a stamp on screen. Nearest neighbour, by a whole factor, so each texel stays a visible square.
+PREVIEW_MIN_PX = 256
+
+
+def upscale_nearest(img: np.ndarray, min_px: int = PREVIEW_MIN_PX) -> np.ndarray:
+    """``img`` [H, W, ...] repeated ``k`` times along H and W, with ``k`` the smallest whole factor that makes
+    its shorter side at least ``min_px`` (1: unchanged)."""
+    img = np.asarray(img)
+    k = max(1, -(-int(min_px) // max(1, min(img.shape[:2]))))
+    return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+
+
+def write_map_previews(folder: Path, albedo, specular, roughness) -> None:
+    """albedo.png, specular.png, roughness.png of texel-space maps ([H, W, 3], [H, W, 1], [H, W, 1]; linear,
+    0-1 shown as is), each enlarged by :func:`upscale_nearest`: ``relight fit``'s and ``truth/``'s."""
+    for name, img in (("albedo", albedo), ("specular", specular), ("roughness", roughness)):
+        write_preview(Path(folder) / f"{name}.png", img, exposure=0.0, curve="none", min_px=PREVIEW_MIN_PX)
+
+
+def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, curve: str = "filmic",
+                  min_px: int = 0) -> None:
+    """A tone-mapped PNG of linear ``img`` [H, W, C] (auto exposure when ``exposure`` is None); ``min_px``
+    > 0: enlarged by :func:`upscale_nearest` (texel-space maps)."""
     from ..image._tonemap import to_uint8, tonemap
     from ..io._png import write_png
 
@@ -359,8 +468,9 @@ def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, cu
     elif img.shape[-1] == 2:
         img = np.concatenate([img, np.zeros_like(img[..., :1])], -1)
     exposure = auto_exposure(img) if exposure is None else exposure
+    png = to_uint8(tonemap(img, exposure=exposure, curve=curve))
     with writing(path):
-        write_png(path, to_uint8(tonemap(img, exposure=exposure, curve=curve)))
+        write_png(path, upscale_nearest(png, min_px) if min_px > 0 else png)
 
 
 def ensure_out(out: str | os.PathLike) -> Path:
@@ -381,11 +491,13 @@ def envmap_path(arg: str | None) -> Path:
 # ------------------------------------------------------------------ the demo's material
 
 
-def demo_material(surface: stage.Surface):
+def demo_material(surface):
     """Ground-truth maps for ``relight simulate`` and ``relight demo``: skin-like
     diffuse albedo, F0 = 0.028 (skin's refractive index 1.4) and a roughness
     varying between 0.2 and 0.5 over the UVs. Returns float32
     ``(rho_d [P, 3], f0 [P, 1], alpha [P, 1])`` for ``brdf.lambert_ggx``."""
+    import jax.numpy as jnp
+
     uv = np.asarray(surface.uv, np.float64)
     u, v = uv[:, 0], uv[:, 1]
     rho_d = np.stack([0.62 + 0.08 * np.sin(7 * u) * np.cos(5 * v),
@@ -399,9 +511,9 @@ def demo_material(surface: stage.Surface):
 
 # ------------------------------------------------------------------ subsurface scattering
 
-# Jensen et al. 2001's measured materials (skin_bssrdf.JENSEN2001), the names ``--subsurface`` takes: all
-# but spectralon, whose sigma_a = 0 makes the diffuse mean free path infinite.
-SUBSURFACE_PRESETS = tuple(sorted(k for k, m in skin_bssrdf.JENSEN2001.items() if min(m.sigma_a) > 0))
+# SUBSURFACE_PRESETS: Jensen et al. 2001's measured materials (skin_bssrdf.JENSEN2001), the names
+# ``--subsurface`` takes: all but spectralon, whose sigma_a = 0 makes the diffuse mean free path infinite.
+# Made on first use by the module's __getattr__ (PEP 562), so that importing this module needs no JAX.
 # Energy fraction of the diffusion profile inside the operator's neighbour radius
 # (skin_bssrdf.energy_radius): the 1% beyond it is dropped, as relight.render drops it.
 SUBSURFACE_ENERGY = 0.99
@@ -413,12 +525,17 @@ def preset_mean_free_path(name: str) -> tuple[np.ndarray, float]:
     sigma_t') (Jensen & Buhler 2002 sec. 4; independent of eta), the diffuse
     mean free path Christensen & Burley 2015's ``dmfp`` fit takes. CLIError on
     an unknown name (listing the known ones)."""
+    import jax.numpy as jnp
+
+    import skin_bssrdf
+
+    presets = _subsurface_presets()
     key = name.lower().replace(" ", "").replace("_", "")
-    if key not in SUBSURFACE_PRESETS:
+    if key not in presets:
         if key in skin_bssrdf.JENSEN2001:
             raise CLIError(f"--subsurface {name}: sigma_a = 0, so its diffuse mean free path is infinite; "
-                           f"choose one of {', '.join(SUBSURFACE_PRESETS)}")
-        raise CLIError(f"--subsurface {name}: not a preset ({', '.join(SUBSURFACE_PRESETS)}) nor an existing "
+                           f"choose one of {', '.join(presets)}")
+        raise CLIError(f"--subsurface {name}: not a preset ({', '.join(presets)}) nor an existing "
                        "mean-free-path EXR")
     m = skin_bssrdf.JENSEN2001[key]
     _, mfp = skin_bssrdf.albedo_from_coefficients(jnp.asarray(m.sigma_a, jnp.float32),
@@ -502,3 +619,18 @@ class compile_cache:
 
     def __exit__(self, *exc) -> None:
         self._set(self._old)
+
+
+def _subsurface_presets() -> tuple[str, ...]:
+    """SUBSURFACE_PRESETS (see its comment)."""
+    import skin_bssrdf
+
+    return tuple(sorted(k for k, m in skin_bssrdf.JENSEN2001.items() if min(m.sigma_a) > 0))
+
+
+def __getattr__(name: str):
+    # PEP 562: SUBSURFACE_PRESETS reads skin_bssrdf (and so JAX) only when asked for.
+    if name == "SUBSURFACE_PRESETS":
+        value = globals()["SUBSURFACE_PRESETS"] = _subsurface_presets()
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import CLIError, bar, finish_parser
+from ._common import CLIError, bar, finish_parser, summary
 
 _SUFFIX = ".zarr"
 
@@ -53,7 +53,7 @@ def run(args) -> int:
     else:
         raise CLIError(f"{src}: neither a capture folder (capture.json) nor a capture store (.zarr with "
                        "relight-store.json)")
-    if not args.quiet:
+    if summary(args):
         store = open_capture_store(dst if what == "store" else src)
         V, L, P, C = store.shape
         on_disk = sum(f.stat().st_size for f in store.path.rglob("*") if f.is_file())

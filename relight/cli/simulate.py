@@ -54,6 +54,7 @@ from ..io import (
     write_maps,
     write_photo_capture,
 )
+from ..io._resultset import open_result_set, write_manifest
 from ..io._store import MARKER as _STORE_MARKER  # the manifest: only a finished store is replaced
 from ..materials._maps import GGX, SUBSURFACE, material_maps
 from ._common import (
@@ -75,7 +76,9 @@ from ._common import (
     parse_cameras,
     parse_rig,
     preset_mean_free_path,
+    summary,
     warn_mesh_size,
+    write_map_previews,
     write_preview,
     write_settings,
     writing,
@@ -348,9 +351,16 @@ def _write_extras(out: Path, mesh, cams, surface, resolution, all_on, truth_maps
     truth_meta = {"source": "relight simulate ground truth"}
     if sss_info is not None:
         truth_meta["subsurface"] = {"eta": sss_info["eta"], "source": sss_info["source"]}
-    write_maps(out / "truth", truth_maps, surface, surface_info=spec, metadata=truth_meta)
     covered = np.zeros((H, W), bool)
     covered.reshape(-1)[np.asarray(surface.texel_index)] = True
+    write_maps(out / "truth", truth_maps, surface, surface_info=spec, metadata=truth_meta)
+    # truth/'s previews, as `relight fit` writes its own, then truth/'s manifest again so that it lists them
+    # (truth/ is inside the capture being built at `out`: no reader sees it before the whole capture is swapped in).
+    grid = lambda x: dilate(surface.to_texture(np.asarray(x, np.float32)), covered)  # noqa: E731
+    write_map_previews(out / "truth", grid(truth_maps.rho_d), grid(truth_maps.rho_s),
+                       grid(np.asarray(truth_maps.alpha)[:, :1]))
+    truth_set = open_result_set(out / "truth")
+    write_manifest(out / "truth", truth_set.kind, truth_set.manifest.get("unhashed") or ())
     view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on.reshape(H, W, -1), covered)})["all_lights"]
     with writing(out / "preview_all_lights.exr"):
         write_exr(out / "preview_all_lights.exr", view)
@@ -434,7 +444,7 @@ def _run_folder(args, out: Path, sensor, sss_source, tmp: Path) -> int:
     write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=rig.num_lights,
                    views=len(cams), samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info,
                    timings_s={k: round(v, 3) for k, v in times.items()})
-    if not args.quiet:
+    if summary(args):
         tail = "" if sss_info is None else (f", subsurface {sss_info['source']}: mfp "
                                             + "/".join(f"{x:.3g}" for x in sss_info["mfp_mm"]) + " mm (R/G/B)")
         print(f"wrote {out}/ ({V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen{tail})")
@@ -498,7 +508,7 @@ def _run_store(args, out: Path, sensor, sss_source, tmp: Path) -> int:
                    samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
                    block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
                    timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
-    if not args.quiet:
+    if summary(args):
         print(f"wrote {out} (capture store: {V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen, "
               f"{n_blocks} blocks of {block} texels)")
     return 0
@@ -662,6 +672,6 @@ def _run_image(args, out: Path, sensor, tmp: Path) -> int:
     times["write_s"] = time.perf_counter() - t0
     write_settings(tmp, "simulate", args, mesh=spec, rig=rig_desc, lights=rig.num_lights, views=len(cams),
                    pixels_seen=[int(m.sum()) for m in masks], timings_s={k: round(v, 3) for k, v in times.items()})
-    if not args.quiet:
+    if summary(args):
         print(f"wrote {out}/ ({len(cams)} camera(s) x {rig.num_lights} lights, photo capture)")
     return 0

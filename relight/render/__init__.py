@@ -8,10 +8,19 @@ grid with ray-cast visibility), "lights" (a median-cut light set of equal
 energy, Debevec 2005, with ray-cast visibility per light), "fast" (SH
 irradiance + split-sum specular + ambient occlusion) and "reference" (Monte
 Carlo with multiple importance sampling). Each is also a typed method object holding its settings
-(``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``), accepted as ``method=``."""
+(``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``), accepted as ``method=``.
 
+What the camera sees besides the shading: ``pixel_coverage`` (a render's alpha), ``environment_behind`` (the
+background to composite over), ``texel_fraction`` / ``uncovered_fraction`` (how much of the subject lies on
+texels with data; ``seen_texels`` gives a capture's)."""
+
+from ._coverage import environment_behind as environment_behind
+from ._coverage import pixel_coverage as pixel_coverage
+from ._coverage import texel_fraction as texel_fraction
+from ._coverage import uncovered_fraction as uncovered_fraction
 from ._image_based import image_based_view as image_based_view
 from ._image_based import nearest_view as nearest_view
+from ._image_based import seen_texels as seen_texels
 from ._methods import DEFAULTS as DEFAULTS
 from ._methods import METHODS as METHODS
 from ._methods import render_samples as render_samples
@@ -27,6 +36,6 @@ from ._view import orbit_camera as orbit_camera
 from ._view import render_view as render_view
 from ._view import turntable as turntable
 
-__all__ = ["AbstractMethod", "DEFAULTS", "Dense", "Fast", "Lights", "METHODS", "Reference", "Rig", "image_based_view",
-           "nearest_view", "orbit_camera", "relight_olat", "relight_olat_sweep", "render_samples", "render_view",
-           "turntable"]
+__all__ = ["AbstractMethod", "DEFAULTS", "Dense", "Fast", "Lights", "METHODS", "Reference", "Rig", "environment_behind",
+           "image_based_view", "nearest_view", "orbit_camera", "pixel_coverage", "relight_olat", "relight_olat_sweep",
+           "render_samples", "render_view", "seen_texels", "texel_fraction", "turntable", "uncovered_fraction"]

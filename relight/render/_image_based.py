@@ -22,7 +22,7 @@ from ..envmap._weights import rotation_sweep_weights
 from ..image._preview import dilate, texture_view
 from ._olat import relight_olat_sweep
 
-__all__ = ["image_based_view", "nearest_view"]
+__all__ = ["image_based_view", "nearest_view", "seen_texels"]
 
 # Gutter texels filled around each UV chart before the texture lookup, so the
 # bilinear lookup at a chart border does not blend in the empty background
@@ -44,6 +44,19 @@ def nearest_view(capture: stage.Capture, camera: stage.Camera) -> np.ndarray:
     score = np.array([unit(c.center) @ target for c in capture.cameras])  # [V]
     seen = np.asarray(capture.mask).any(axis=1)  # [V, P]
     return np.argmax(np.where(seen, score[:, None], -np.inf), axis=0)
+
+
+def seen_texels(capture: stage.Capture, surface: stage.Surface) -> tuple[np.ndarray, np.ndarray]:
+    """(seen, held), bool [H, W] on ``surface``'s texel grid: texels some capture view observes (a valid
+    observation under any light), and texels the capture holds a sample of. Relit image-based, a held
+    texel no view saw is black (it has no radiance); ``relight.render.texel_fraction`` shows where."""
+    seen = np.asarray(capture.mask).any(axis=(0, 1))  # [P]
+    H, W = surface.resolution
+    idx = np.asarray(surface.texel_index)
+    grid_seen, held = np.zeros(H * W, bool), np.zeros(H * W, bool)
+    grid_seen[idx[seen]] = True
+    held[idx] = True
+    return grid_seen.reshape(H, W), held.reshape(H, W)
 
 
 def image_based_view(capture: stage.Capture, surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera,

@@ -121,8 +121,8 @@ def test_fit_killed_while_replacing_a_map_set(capture, env):
     old_albedo = read_maps(out)[0].albedo
     snapshot = root / "maps_old"
     shutil.copytree(out, snapshot)
-    new = ["fit", str(root / "cap"), "--out", str(out), "--method", "gn", *FIT]
-    new_flags = {"method": "gn"}
+    new = ["fit", str(root / "cap"), "--out", str(out), "--solver", "gn", *FIT]
+    new_flags = {"solver": "gn"}
 
     # Killed after the new run's first block (the reported failure: a new albedo.exr beside the old maps.json
     # and the old specular / roughness). The old set stands; the block is kept for --resume.
