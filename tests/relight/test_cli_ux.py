@@ -33,12 +33,11 @@ def test_version_prints_the_package_version(capsys):
     assert capsys.readouterr().out.strip() == f"relight {version('lightstage-relight')}"
 
 
-# relight/__init__.py imports every subpackage (and so JAX) whatever relight.cli does; this check loads
-# relight.cli under an empty ``relight`` package so that it measures the CLI's own imports: the dispatcher
-# must import no command module, and so no JAX, to print the top-level help or the version.
+# relight/__init__.py loads its subpackages on first use (PEP 562), so this check imports the real package:
+# the dispatcher must import no command module, and so no JAX, to print the top-level help or the version.
 _NO_JAX = """
-import sys, types
-pkg = types.ModuleType("relight"); pkg.__path__ = [{root!r} + "/relight"]; sys.modules["relight"] = pkg
+import sys
+sys.path.insert(0, {root!r})
 from relight.cli import main
 for argv in {argv!r}:
     try:

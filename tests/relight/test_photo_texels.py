@@ -166,7 +166,10 @@ def test_cli_fit_of_a_photo_capture(scene, tmp_path, capsys):
     assert doc["photos"]["unseen"] == report.n_unseen > 0 and doc["samples"] == surface.num_samples
     assert f"{report.n_unseen} of {surface.num_samples} texels" in (out / "report.md").read_text()
     cov = read_png(out / "coverage.png")
-    assert cov.shape == (16, 16, 3)
+    # A 16 x 16 grid enlarged nearest-neighbour 16x to the previews' 256 px: every texel a 16 x 16 square.
+    assert cov.shape == (256, 256, 3)
+    np.testing.assert_array_equal(cov, np.repeat(np.repeat(cov[::16, ::16], 16, 0), 16, 1))
+    cov = cov[::16, ::16]
     red = (cov[..., 0] == 255) & (cov[..., 1] == 0)
     np.testing.assert_array_equal(red, report.coverage == 0)
     for name in ("albedo.png", "maps.json", "settings.json", "rig.json"):
