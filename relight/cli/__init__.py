@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 # The commands in the order ``relight --help`` lists them, each with its one-line help: the top-level parser is
@@ -107,6 +108,11 @@ def main(argv=None) -> int:
         # Before the command compiles anything: the cache is looked up at each compile.
         with compile_cache(cache_dir(args.cache_dir), args.command):
             return args.func(args)
+    except BrokenPipeError:
+        # The reader of stdout went away (`relight info | head -1`): stop quietly, as a Unix filter does,
+        # with stdout pointed at /dev/null so the interpreter's final flush cannot raise again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a filter killed by the broken pipe
     except (CLIError, OSError, ValueError) as exc:
         # OSError covers FileNotFoundError / FileExistsError / PermissionError;
         # ValueError covers relight.io.ImageFormatError. Messages name the file.

@@ -473,14 +473,6 @@ def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, cu
         write_png(path, upscale_nearest(png, min_px) if min_px > 0 else png)
 
 
-def ensure_out(out: str | os.PathLike) -> Path:
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"--out {out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
-
-
 def envmap_path(arg: str | None) -> Path:
     """``--envmap``: the given file, or the bundled map."""
     from ..envmap import bundled_envmap_path

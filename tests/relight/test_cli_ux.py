@@ -5,6 +5,7 @@ fit's report: every error over all seen texels and over the unflagged ones, with
 
 import io
 import json
+import os
 import re
 import subprocess
 import sys
@@ -323,3 +324,18 @@ def test_quiet_keeps_the_summary_and_qq_hides_it(fitted, tmp_path, capsys, monke
     assert main(["convert", str(fitted / "cap"), str(tmp_path / "b.zarr"), "-qq"]) == 0
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
+
+
+def test_a_closed_stdout_ends_quietly():
+    """`relight info | head -1`: the reader is gone before the command writes (its end of the pipe closed
+    first, so the write fails for certain); the command stops with 141 (128 + SIGPIPE) and no error text."""
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        out = subprocess.run([sys.executable, "-c", "import sys; from relight.cli import main; "
+                              "sys.exit(main(['--cache-dir', 'off', 'info']))"], stdout=w, stderr=subprocess.PIPE,
+                             text=True, timeout=120, cwd=ROOT)
+    finally:
+        os.close(w)
+    assert out.returncode == 141, out.stderr
+    assert "Broken pipe" not in out.stderr and "Traceback" not in out.stderr
