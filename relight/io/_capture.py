@@ -40,7 +40,7 @@ import numpy as np
 
 import stage
 
-from ._errors import ImageFormatError, check_image_size, check_radiance, path_inside, path_template
+from ._errors import ImageFormatError, check_image_size, check_radiance, format_version, path_inside, path_template
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
 from ._resultset import MANIFEST, _folder_mode, open_result_set, swap_into
@@ -234,11 +234,7 @@ def _check_info(info: object, where: Path) -> Mapping:
         raise ImageFormatError(f"{where}: must be a JSON object, got {type(info).__name__}")
     if info.get("format") != _FORMAT:
         raise ImageFormatError(f"{where}: not a relight capture (format {info.get('format')!r})")
-    version = info.get("version", _VERSION)
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise ImageFormatError(f"{where}: field 'version' must be a positive integer, got {version!r}")
-    if version > _VERSION:
-        raise ImageFormatError(f"{where}: format version {version} is newer than this reader ({_VERSION})")
+    format_version(info, where, _VERSION, default=_VERSION)
     _count(info, "n_views", where)
     _count(info, "n_lights", where)
     shape, channels = info.get("sample_shape"), info.get("channels")

@@ -96,6 +96,19 @@ def path_template(template: object, fields: Mapping[str, object], required: tupl
     return template
 
 
+def format_version(doc: Mapping, where: object, newest: int, default: int | None = None,
+                   error: type[ValueError] = ImageFormatError) -> int:
+    """The ``version`` field of a file's JSON object ``doc``: a positive JSON integer (not a bool or a
+    string) no newer than ``newest``, the version this reader knows; ``default`` when the field is absent
+    (None: it is required). Raises ``error`` naming ``where`` otherwise."""
+    version = doc.get("version", default)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise error(f"{where}: field 'version' must be a positive integer, got {version!r}")
+    if version > newest:
+        raise error(f"{where}: format version {version} is newer than this reader ({newest})")
+    return version
+
+
 def check_image_size(path: str | os.PathLike, height: int, width: int, channels: int = 1,
                      what: str = "image") -> None:
     """Refuse a declared image size before allocating it: both sides >= 1 and

@@ -58,7 +58,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from ._atomic import _umask, atomic_write_text
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, format_version
 
 __all__ = ["FolderLock", "FolderLockedError", "ForeignFolderError", "NoSpaceError", "ResultSet", "ResultSetError",
            "check_output_folder", "clean_stale", "is_result_set", "open_result_set", "result_set", "swap_into",
@@ -384,11 +384,7 @@ def open_result_set(folder: str | os.PathLike, kind: str | Sequence[str] | None 
         raise ResultSetError(f"{path}: not valid JSON ({err})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ResultSetError(f"{path}: not a relight result-set manifest")
-    version = doc.get("version")
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise ResultSetError(f"{path}: field 'version' must be a positive integer, got {version!r}")
-    if version > VERSION:
-        raise ResultSetError(f"{path}: version {version} is newer than this reader ({VERSION})")
+    format_version(doc, path, VERSION, error=ResultSetError)
     if not isinstance(doc.get("files"), dict):
         raise ResultSetError(f"{path}: field 'files' must be a table")
     kinds = (kind,) if isinstance(kind, str) else tuple(kind or ())

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..image._preview import dilate
 from ..materials._maps import MODELS, MaterialMaps, material_maps
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, format_version
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import jsonable, read_json, write_json
 from ._resultset import ResultSetError, open_result_set, result_set, writing
@@ -375,11 +375,7 @@ def _read_header(meta_path: Path) -> tuple[dict, tuple[int, int]]:
     fmt = info.get("format") if isinstance(info, dict) else None
     if fmt != FORMAT:
         raise ImageFormatError(f"{meta_path}: not a relight map set (format {fmt!r}, expected {FORMAT!r})")
-    version = info.get("version", VERSION)
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise ImageFormatError(f"{meta_path}: field 'version' must be a positive integer, got {version!r}")
-    if version > VERSION:
-        raise ImageFormatError(f"{meta_path}: format version {version} is newer than this reader ({VERSION})")
+    format_version(info, meta_path, VERSION, default=VERSION)
     try:
         res = tuple(int(r) for r in info["resolution"])
         assert len(res) == 2 and min(res) > 0
