@@ -1,8 +1,9 @@
 """relight: the application — file IO (``relight.io``), environment maps
 (``relight.envmap``), material maps (``relight.materials``), fitting with
 Optimistix (``relight.fitting``), image-based and model-based relighting
-(``relight.render``), preview images (``relight.image``) and the ``relight``
-CLI (``relight.cli``, loaded on demand). See docs/ARCHITECTURE.md.
+(``relight.render``), preview images (``relight.image``), learned lighting
+patterns (``relight.patterns``), the results viewer (``relight.view``) and the
+``relight`` CLI (``relight.cli``, loaded on demand). See docs/ARCHITECTURE.md.
 
 The subpackages and the names re-exported here load on first use (PEP 562),
 so ``relight --help`` and ``relight --version`` start without JAX."""
@@ -16,7 +17,9 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from . import image as image
     from . import io as io
     from . import materials as materials
+    from . import patterns as patterns
     from . import render as render
+    from . import view as view
     from .fitting import ALPHA_FIT_MIN as ALPHA_FIT_MIN
     from .fitting import FAILED_NONFINITE as FAILED_NONFINITE
     from .fitting import LOSSES as LOSSES
@@ -24,6 +27,7 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from .fitting import SOLVERS as SOLVERS
     from .fitting import Fit as Fit
     from .fitting import fit as fit
+    from .fitting import fit_patterns as fit_patterns
     from .fitting import fit_subsurface as fit_subsurface
     from .fitting import fit_with_subsurface as fit_with_subsurface
     from .fitting import rig_alpha_floor as rig_alpha_floor
@@ -33,7 +37,7 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from .materials import material_maps as material_maps
     from .materials import phong_exponent as phong_exponent
 
-_SUBPACKAGES = ("envmap", "fitting", "image", "io", "materials", "render")
+_SUBPACKAGES = ("envmap", "fitting", "image", "io", "materials", "patterns", "render", "view")
 # name -> the subpackage that defines it
 _NAMES = {
     "ALPHA_FIT_MIN": "fitting",
@@ -43,6 +47,7 @@ _NAMES = {
     "SOLVERS": "fitting",
     "Fit": "fitting",
     "fit": "fitting",
+    "fit_patterns": "fitting",
     "fit_subsurface": "fitting",
     "fit_with_subsurface": "fitting",
     "rig_alpha_floor": "fitting",

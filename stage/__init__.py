@@ -1,6 +1,7 @@
 """stage: the light stage as a simulator — rigs, cameras, meshes to surface
 samples (texels or pixels), visibility, sensor model, polarisation and
-gradient illumination, and one-light-at-a-time capture simulation. The one
+gradient illumination, one-light-at-a-time capture simulation and pattern
+captures (weighted sums of the OLAT frames, simulated directly). The one
 OLAT forward model (``incident_light``, ``to_local``, ``reflected_radiance``,
 ``subsurface_irradiance``, ``subsurface_exitance``) lives here and is shared
 by simulation, fitting and rendering. See docs/stage.md."""
@@ -37,6 +38,17 @@ from ._mesh import check_mesh as check_mesh
 from ._mesh import head_mesh_path as head_mesh_path
 from ._mesh import load_head as load_head
 from ._mesh import load_mesh as load_mesh
+from ._pattern_files import PATTERN_FORMAT as PATTERN_FORMAT
+from ._pattern_files import PATTERN_FORMAT_VERSION as PATTERN_FORMAT_VERSION
+from ._pattern_files import PATTERN_POSITION_TOLERANCE_MM as PATTERN_POSITION_TOLERANCE_MM
+from ._pattern_files import load_patterns as load_patterns
+from ._pattern_files import save_patterns as save_patterns
+from ._patterns import PatternCapture as PatternCapture
+from ._patterns import capture_patterns as capture_patterns
+from ._patterns import check_patterns as check_patterns
+from ._patterns import gradient_patterns as gradient_patterns
+from ._patterns import sense_patterns as sense_patterns
+from ._patterns import simulate_patterns as simulate_patterns
 from ._progress import Phase as Phase
 from ._progress import Progress as Progress
 from ._rig import Gonioreflectometer as Gonioreflectometer
