@@ -1,7 +1,8 @@
 """Fitting per-sample reflectance to captures with Optimistix: the driver
 (chunked, compiled once), the photometric-stereo start, the per-rung model and
-its structured Jacobian, the model ladder and the subsurface fit (per region
-or per texel, with its own ladder). See docs/fit.md."""
+its structured Jacobian, the model ladder, the subsurface fit (per region
+or per texel, with its own ladder) and the fit to pattern captures
+(``fit_patterns``). See docs/fit.md."""
 
 from ._driver import ALPHA_FIT_MIN as ALPHA_FIT_MIN
 from ._driver import FAILED_NONFINITE as FAILED_NONFINITE
@@ -18,5 +19,7 @@ from ._parts import PartsFingerprintError as PartsFingerprintError
 from ._parts import PartsIncompleteError as PartsIncompleteError
 from ._parts import fit_parts as fit_parts
 from ._parts import merge_parts as merge_parts
+from ._patterns import MIN_PATTERN_OBSERVATIONS as MIN_PATTERN_OBSERVATIONS
+from ._patterns import fit_patterns as fit_patterns
 from ._subsurface import fit_subsurface as fit_subsurface
 from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP

@@ -105,7 +105,10 @@ class Fit(eqx.Module):
     "narrower than the rig can tell", flagged by ``unresolved``), the mean
     free path [P, 3] (mm; after :func:`relight.fit_subsurface`, else None) and
     the solver's name (``solver``: the string given to :func:`fit`, or the
-    class and tolerances of the Optimistix solver object).
+    class and tolerances of the Optimistix solver object). ``min_observed``
+    (static): the fewest valid observations a sample needs (``failed`` below
+    it): 8 (lights x views) for :func:`fit`, 4 pattern measurements for
+    :func:`relight.fitting.fit_patterns`.
 
     After :func:`relight.fit_subsurface` (else None): ``mfp_sigma`` [P, 3], the
     1-sigma of ln(mfp) per channel from the data alone (s^2 (J^T J)^-1 with the
@@ -134,6 +137,9 @@ class Fit(eqx.Module):
     solver: str = eqx.field(static=True, default="lm")
     mfp_sigma: Float[Array, "sample 3"] | None = None
     mfp_rung: Int[Array, " sample"] | None = None
+    # Fewer valid observations than this leave a sample underdetermined (``failed``): _MIN_OBSERVATIONS
+    # (lights x views) for an OLAT fit; for relight.fitting.fit_patterns, pattern measurements (views x patterns).
+    min_observed: int = eqx.field(static=True, default=_MIN_OBSERVATIONS)
     # ambiguous's bar on the albedo's relative 1-sigma.
     AMBIGUOUS_RELATIVE_SIGMA: ClassVar[float] = 0.1
     # mfp_identified's bar on the 1-sigma of ln mfp: 25% relative.
@@ -147,7 +153,7 @@ class Fit(eqx.Module):
     @property
     def failed(self):
         """Samples whose solve failed or that had too few observations."""
-        return (self.result != 0) | (self.observed < _MIN_OBSERVATIONS)
+        return (self.result != 0) | (self.observed < self.min_observed)
 
     @property
     def mfp_identified(self):
@@ -166,7 +172,7 @@ class Fit(eqx.Module):
         dome at 1000 photons every texel below 0.8x its true albedo is flagged
         (tests/relight/test_fit_ambiguous.py at 100 photons on a sphere)."""
         rel = self.uncertainty[:, :3] / jnp.maximum(self.rho_d, 1e-6)
-        return jnp.any(~(rel <= self.AMBIGUOUS_RELATIVE_SIGMA), axis=1) & (self.observed >= _MIN_OBSERVATIONS)
+        return jnp.any(~(rel <= self.AMBIGUOUS_RELATIVE_SIGMA), axis=1) & (self.observed >= self.min_observed)
 
     @property
     def unidentified(self):
@@ -247,6 +253,65 @@ def _start_chunk(obs, w, wi, wo, irr, lay):
     return jax.vmap(lambda *a: _fit_model.pack(_fit_init.start(*a, lay), lay))(obs, w, wi, wo, irr)
 
 
+def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: int):
+    """One sample's solve, shared by :func:`fit` and :func:`relight.fitting.fit_patterns`.
+
+    ``rj(u) -> (r [m], J [m, k], ...)``: the robust residual and its
+    structured Jacobian (anything after them is returned as it is).
+    ``n_weight``: the residual's total weight (the valid observations x
+    channels: the noise estimate's degrees of freedom before the k
+    parameters); ``n_entries`` (static): m, for the rounding slack of the
+    accept test. ``max_steps`` steps of the Optimistix ``solver`` from u0
+    (NormalLevenbergMarquardt on the normal equations of ``rj``, any other
+    through the custom-JVP residual :func:`relight.fitting._model.materialised`);
+    the solve is kept only if it is finite and does not raise the cost (else
+    the start, code FAILED_NONFINITE). Returns (u, code, steps, sigma [k'] of
+    the physical parameters (:func:`relight.fitting._model.physical_vector`),
+    rj(u))."""
+    res = _fit_model.materialised(rj)
+    if isinstance(solver, NormalLevenbergMarquardt):  # it takes the structured normal equations as fn's aux
+        def normal(u, _):
+            r, J = rj(u)[:2]
+            return r, (J.T @ J, J.T @ r)
+
+        sol = optx.least_squares(normal, solver, u0, has_aux=True, options={"jac": "normal"},
+                                 max_steps=max_steps, throw=False)
+    else:
+        sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
+    u1 = sol.value
+    cost0 = jnp.sum(res(u0) ** 2)
+    cost1 = jnp.sum(res(u1) ** 2)
+    # Reject only a real increase: the slack is 1e-6 plus the worst-case
+    # rounding of a sum of n = 3N squares in this dtype, about n eps (Higham
+    # 2002, ch. 4). Near the optimum float32 costs differ by that much (LM
+    # accepts steps whose predicted reduction is ~0): 1e-6 alone flagged 1-2%
+    # of samples FAILED_NONFINITE in float32 by rounding. float64: unchanged.
+    slack = 1e-6 + n_entries * float(jnp.finfo(u0.dtype).eps)
+    good = jnp.all(jnp.isfinite(u1)) & jnp.isfinite(cost1) & (cost1 <= cost0 * (1 + slack) + 1e-30)
+    u = jnp.where(good, u1, u0)
+    code = jnp.where(good, sol.result._value, FAILED_NONFINITE)
+    final = rj(u)
+    r_u, J = final[:2]
+    # One-sigma uncertainties from the Gauss-Newton covariance s^2 (J^T J)^-1
+    # of the (robust) residual, mapped to the physical parameters.
+    k = u.shape[0]
+    dof = jnp.maximum(n_weight - k, 1.0)
+    s2 = jnp.sum(r_u ** 2) / dof
+    jtj = J.T @ J
+    ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
+    cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))
+    Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
+    var = jnp.sum((Jp @ cov) * Jp, axis=1)
+    # Unknown, not "perfectly known": a parameter the data do not constrain
+    # (its Jacobian column numerically null next to the others, or fewer
+    # valid observations than parameters: no noise estimate) or whose
+    # variance is not finite or beyond any meaningful range gets sigma = inf.
+    null_u = (jnp.diagonal(jtj) <= 1e-10 * (jnp.trace(jtj) / k)) | (n_weight <= k)
+    unknown = (jnp.abs(Jp) @ null_u.astype(u.dtype) > 0) | ~jnp.isfinite(var) | (var > 1e6) | (n_weight <= k)
+    sigma = jnp.where(unknown, jnp.inf, jnp.sqrt(jnp.clip(jnp.where(unknown, 0.0, var), 0.0, None)))
+    return u, code, sol.stats["num_steps"], sigma, final
+
+
 # eqx.filter_jit: the solver object's array leaves (GaussNewton's learning
 # rate) are traced and the rest is static (hashed), like ``lay``, ``max_steps``
 # and ``cauchy``; so one compilation per (rung, solver, shapes).
@@ -265,51 +330,14 @@ def _solve_chunk(u0, obs, w, h, wi, wo, irr, *, lay, solver, max_steps, cauchy):
         c = None if cauchy is None else cauchy * scale + 1e-12
         # Component-major [3, N] for the model (it vectorises over the lights).
         obs, sw, h, wi, wo, irr = (x.T for x in (obs, sw, h, wi, wo, irr))
-        res = _fit_model.materialised_residual(obs, sw, wi, wo, irr, lay, c)
-        if isinstance(solver, NormalLevenbergMarquardt):  # it takes the structured normal equations as fn's aux
-            def normal(u, _):
-                r, J, _ = _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)
-                return r, (J.T @ J, J.T @ r)
-
-            sol = optx.least_squares(normal, solver, u0, has_aux=True, options={"jac": "normal"},
-                                     max_steps=max_steps, throw=False)
-        else:
-            sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
-        u1 = sol.value
-        cost0 = jnp.sum(res(u0) ** 2)
-        cost1 = jnp.sum(res(u1) ** 2)
-        # Reject only a real increase: the slack is 1e-6 plus the worst-case
-        # rounding of a sum of n = 3N squares in this dtype, about n eps (Higham
-        # 2002, ch. 4). Near the optimum float32 costs differ by that much (LM
-        # accepts steps whose predicted reduction is ~0): 1e-6 alone flagged 1-2%
-        # of samples FAILED_NONFINITE in float32 by rounding. float64: unchanged.
-        slack = 1e-6 + obs.size * float(jnp.finfo(u0.dtype).eps)
-        good = jnp.all(jnp.isfinite(u1)) & jnp.isfinite(cost1) & (cost1 <= cost0 * (1 + slack) + 1e-30)
-        u = jnp.where(good, u1, u0)
-        code = jnp.where(good, sol.result._value, FAILED_NONFINITE)
-        r_u, J, pred = _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)
-        raw = pred - obs
         w2 = sw * sw
+        u, code, nsteps, sigma, (_, _, pred) = solve_one(
+            lambda u: _fit_model.residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c), u0, jnp.sum(w2), obs.size,
+            lay, solver, max_steps)
+        raw = pred - obs
         rms = jnp.sqrt(jnp.sum(w2 * raw * raw) / jnp.maximum(jnp.sum(w2), 1.0))
         hmse = jnp.sum(h * raw * raw) / jnp.maximum(jnp.sum(h), 1.0)
-        # One-sigma uncertainties from the Gauss-Newton covariance s^2 (J^T J)^-1
-        # of the (robust) residual, mapped to the physical parameters.
-        k = u.shape[0]
-        dof = jnp.maximum(jnp.sum(w2) - k, 1.0)
-        s2 = jnp.sum(r_u ** 2) / dof
-        jtj = J.T @ J
-        ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
-        cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))
-        Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
-        var = jnp.sum((Jp @ cov) * Jp, axis=1)
-        # Unknown, not "perfectly known": a parameter the data do not constrain
-        # (its Jacobian column numerically null next to the others, or fewer
-        # valid observations than parameters: no noise estimate) or whose
-        # variance is not finite or beyond any meaningful range gets sigma = inf.
-        null_u = (jnp.diagonal(jtj) <= 1e-10 * (jnp.trace(jtj) / k)) | (jnp.sum(w2) <= k)
-        unknown = (jnp.abs(Jp) @ null_u.astype(u.dtype) > 0) | ~jnp.isfinite(var) | (var > 1e6) | (jnp.sum(w2) <= k)
-        sigma = jnp.where(unknown, jnp.inf, jnp.sqrt(jnp.clip(jnp.where(unknown, 0.0, var), 0.0, None)))
-        return u, rms, code, sol.stats["num_steps"], sigma, hmse
+        return u, rms, code, nsteps, sigma, hmse
 
     return jax.vmap(one)(u0, obs, w, h, wi, wo, irr)
 
@@ -345,34 +373,48 @@ def _chunks_of(index, size):
 
 def _fit_rung(data, w, h, index, lay, u0, opts, bar):
     """Fit one rung to the samples ``index`` (of the block ``data``); returns
-    per-sample arrays over ``index``. Counts the samples finished on ``bar``
-    (a ``stage.Phase``). Every chunk goes to the devices through
-    ``opts["put"]`` (:func:`_placer`)."""
+    per-sample arrays over ``index`` (:func:`run_rounds`)."""
     obs, _, wi, wo, irr = data
+    return run_rounds(
+        (obs, w, h, wi, wo, irr), index, lay, u0,
+        lambda a: _start_chunk(a[0], a[1], a[3], a[4], a[5], lay),
+        lambda u, a: _solve_chunk(u, *a, lay=lay, solver=opts["solver"], max_steps=opts["steps_per_round"],
+                                  cauchy=opts["cauchy"]),
+        opts, bar)
+
+
+def run_rounds(arrays, index, lay, u0, start, solve, opts, bar):
+    """The rounds of a rung's solve over the samples ``index`` of ``arrays``
+    (per-sample NumPy arrays, sample axis first), shared by :func:`fit` and
+    :func:`relight.fitting.fit_patterns`: ``opts["size"]`` samples per call
+    (padded: one compilation), each round only the samples still at
+    ``max_steps`` (straggler compaction), ``opts["rounds"]`` rounds.
+    ``start(chunk arrays) -> u [size, k]`` when ``u0`` is None;
+    ``solve(u, chunk arrays) -> (u, rms, code, steps, sigma, held-out MSE)``.
+    Counts the samples finished on ``bar`` (a ``stage.Phase``). Every chunk
+    goes to the devices through ``opts["put"]`` (:func:`_placer`)."""
+    dtype = arrays[0].dtype
     chunk = opts["size"]
     put = opts["put"]
     n_all = len(index)
     local = np.arange(n_all)
-    take = lambda x, idx: put(x[index[idx]])  # noqa: E731
+    take = lambda idx: tuple(put(x[index[idx]]) for x in arrays)  # noqa: E731
     if u0 is None:
-        u = np.zeros((n_all, lay.size), obs.dtype)
+        u = np.zeros((n_all, lay.size), dtype)
         for idx, n in _chunks_of(local, chunk):
-            u[idx[:n]] = np.asarray(_start_chunk(take(obs, idx), take(w, idx), take(wi, idx), take(wo, idx),
-                                                 take(irr, idx), lay))[:n]
+            u[idx[:n]] = np.asarray(start(take(idx)))[:n]
     else:
-        u = np.array(u0, obs.dtype)
-    rms = np.zeros(n_all, obs.dtype)
-    hmse = np.zeros(n_all, obs.dtype)
+        u = np.array(u0, dtype)
+    rms = np.zeros(n_all, dtype)
+    hmse = np.zeros(n_all, dtype)
     code = np.zeros(n_all, np.int32)
     steps = np.zeros(n_all, np.int32)
     sigma = np.zeros((n_all, len(_fit_model.physical_vector(_fit_model.unpack(jnp.zeros(lay.size), lay), lay))),
-                     obs.dtype)
+                     dtype)
     active = local
     for _ in range(opts["rounds"]):
         for idx, n in _chunks_of(active, chunk):
-            out = _solve_chunk(put(u[idx]), take(obs, idx), take(w, idx), take(h, idx), take(wi, idx),
-                               take(wo, idx), take(irr, idx), lay=lay, solver=opts["solver"],
-                               max_steps=opts["steps_per_round"], cauchy=opts["cauchy"])
+            out = solve(put(u[idx]), take(idx))
             uu, rr, cc, kk, ss, hh = (np.asarray(x)[:n] for x in out)
             sel = idx[:n]
             u[sel], rms[sel], code[sel], steps[sel], sigma[sel], hmse[sel] = uu, rr, cc, steps[sel] + kk, ss, hh
@@ -669,7 +711,7 @@ def _obs_bucket(n: int) -> int:
     return b
 
 
-def fit_from_arrays(out: dict, dt, floor: float, solver_name: str) -> Fit:
+def fit_from_arrays(out: dict, dt, floor: float, solver_name: str, min_observed: int = _MIN_OBSERVATIONS) -> Fit:
     """A ``Fit`` from its per-sample NumPy arrays (the ``on_block`` fields, [P, ...])."""
     f = lambda x: jnp.asarray(x, dt)  # noqa: E731
     i32 = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
@@ -677,7 +719,7 @@ def fit_from_arrays(out: dict, dt, floor: float, solver_name: str) -> Fit:
                tangent=f(out["tangent"]), model=i32(out["model"]), residual=f(out["residual"]),
                heldout=f(out["heldout"]), result=i32(out["result"]), steps=i32(out["steps"]),
                observed=jnp.asarray(out["observed"], jnp.float32), uncertainty=f(out["uncertainty"]),
-               alpha_floor=floor, solver=solver_name)
+               alpha_floor=floor, solver=solver_name, min_observed=int(min_observed))
 
 
 def _check_fit_args(P, C, surface, chunk, rounds, steps_per_round, block, progress, on_block, loss, cauchy, model,
@@ -757,8 +799,19 @@ def _fit_block(capture, kind, rig, cameras, surface, b0, b1, n_valid, n_keep, dt
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, Layout(k, normals, floor), trial[k]["u"][sel], opts,
                                           bar))
     out = _assemble(fits, choice, n, normals, floor, dt, block_surface, opts["size"])
+    return finish_block(out, n_valid, block_surface, unit, heldout, choice, dt, _MIN_OBSERVATIONS)
+
+
+def finish_block(out, n_valid, block_surface, unit, heldout, choice, dt, min_observed: int) -> dict:
+    """A block's Fit fields (``_FIELDS``) from :func:`_assemble`'s ``out``:
+    samples with fewer than ``min_observed`` valid observations get grey
+    defaults and every parameter of their rung unknown (sigma inf); NaN is
+    replaced (parameters 0, sigma inf, residual the largest float); the RMS
+    residual and held-out RMS are scaled back by ``unit`` [n] to the
+    capture's radiance units. Shared by :func:`fit` and
+    :func:`relight.fitting.fit_patterns`."""
     nobs = n_valid.astype(np.float32)
-    empty = nobs < _MIN_OBSERVATIONS
+    empty = nobs < min_observed
     # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
     out["rho_d"][empty] = 0.5
     out["rho_s"][empty] = 0.04

@@ -74,13 +74,20 @@ def _alpha_grid(floor, dtype):
     return jnp.maximum(base, floor * 1.02)
 
 
-def specular_start(obs, w, wi, wo, irr, normal, lay: Layout):
-    """Closed-form (rho_d, rho_s) on a roughness grid; keep the best. Returns Params."""
+def specular_start(obs, w, wi, wo, irr, normal, lay: Layout, mix=None):
+    """Closed-form (rho_d, rho_s) on a roughness grid; keep the best. Returns Params.
+
+    ``mix`` (optional): a linear map of per-observation bases [N, C] to the
+    space of ``obs`` and ``w`` [M, C] (relight.fitting.fit_patterns: the
+    pattern weights W x visibility), applied to the model's terms before the
+    closed-form solve; the model stays linear in (rho_d, rho_s) after it."""
     R = frame(normal, jnp.zeros((), obs.dtype))
     wi_f, wo_f = wi @ R.T, wo @ R.T
     cos_i = jnp.maximum(wi_f[:, 2:3], 0.0)
     lit = (wi_f[:, 2:3] > 0) & (wo_f[:, 2:3] > 0)
     d = jnp.where(lit, cos_i * irr / jnp.pi, 0.0)  # multiplies rho_d per channel
+    mix = (lambda x: x) if mix is None else mix
+    d = mix(d)
     one, zero = jnp.ones(1, obs.dtype), jnp.zeros(1, obs.dtype)
 
     def at(alpha):
@@ -92,6 +99,7 @@ def specular_start(obs, w, wi, wo, irr, normal, lay: Layout):
             s1 = specular(lay.model, one, al, wi_f, wo_f)
             s0 = specular(lay.model, zero, al, wi_f, wo_f)
             a, b = (s1 - s0) * cos_i * irr, s0 * cos_i * irr
+        a, b = mix(a), mix(b)
         y = obs - b
         dd, da, aa = jnp.sum(w * d * d, 0), jnp.sum(w * d * a, 0), jnp.sum(w * a * a)
         dy, ay = jnp.sum(w * d * y, 0), jnp.sum(w * a * y)

@@ -266,22 +266,29 @@ def residual_and_jacobian(u, obs, sw, wi, wo, irr, lay: Layout, c):
     return r.reshape(-1), Jt.T, pred
 
 
-def materialised_residual(obs, sw, wi, wo, irr, lay: Layout, c):
-    """u -> robust residual [3N] (:func:`residual_and_jacobian`) whose JVP is
-    the materialised Jacobian times the tangent: Optimistix linearises it once
-    per step at the cost of one model evaluation, and its linear solves
-    multiply by J (and J^T) instead of re-tracing the model."""
+def materialised(rj):
+    """u -> r for ``rj(u) -> (r [m], J [m, k], ...)`` (a residual and its
+    structured Jacobian), whose JVP is the materialised Jacobian times the
+    tangent: Optimistix linearises it once per step at the cost of one model
+    evaluation, and its linear solves multiply by J (and J^T) instead of
+    re-tracing the model. Shared by the OLAT and the pattern residuals."""
 
     @jax.custom_jvp
     def residual(u):
-        return residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c)[0]
+        return rj(u)[0]
 
     @residual.defjvp
     def _jvp(primals, tangents):
-        r, J, _ = residual_and_jacobian(primals[0], obs, sw, wi, wo, irr, lay, c)
+        r, J = rj(primals[0])[:2]
         return r, tangents[0] @ J.T
 
     return residual
+
+
+def materialised_residual(obs, sw, wi, wo, irr, lay: Layout, c):
+    """u -> robust residual [3N] (:func:`residual_and_jacobian`) with the
+    materialised Jacobian as its JVP (:func:`materialised`)."""
+    return materialised(lambda u: residual_and_jacobian(u, obs, sw, wi, wo, irr, lay, c))
 
 
 def cauchy_scale(y):
@@ -314,5 +321,5 @@ def physical_vector(p: Params, lay: Layout):
 
 
 __all__ = ["Layout", "Params", "unpack", "pack", "material", "fitted_directions", "predict", "residual_and_jacobian",
-           "materialised_residual", "robust", "physical_vector", "frame", "view_above_horizon",
+           "materialised", "materialised_residual", "robust", "physical_vector", "frame", "view_above_horizon",
            "LAMBERT", "BLINN_PHONG", "GGX", "GGX_ANISO"]
