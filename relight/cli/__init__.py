@@ -8,6 +8,7 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``render``: relight a capture (image-based) or a map set (model-based);
 * ``convert``: a capture folder to a chunked Zarr v3 capture store, or back;
 * ``demo``: simulate, fit and relight the bundled head in one go;
+* ``view``: index.html, the results viewer (a self-contained page with an environment-rotation slider);
 * ``info``: versions, devices and bundled data.
 
 ``-q`` / ``--quiet`` hides progress bars, ``-qq`` the one-line summary too.
@@ -39,6 +40,7 @@ COMMANDS = (
     ("render", "relight a capture (image-based) or a fitted map set (model-based)"),
     ("convert", "capture folder <-> capture store (.zarr, chunked Zarr v3)"),
     ("demo", "simulate, fit and relight the bundled textured head (built-in defaults)"),
+    ("view", "write index.html, the results viewer, into a result folder"),
     ("info", "versions, devices, bundled data and the shared data folder"),
 )
 NAMES = tuple(name for name, _ in COMMANDS)

@@ -433,17 +433,17 @@ def auto_exposure(img: np.ndarray, coverage: np.ndarray | None = None) -> float:
     return subject_exposure(img, coverage)
 
 
-# Texel-space previews (one pixel a texel) are enlarged to at least this many pixels a side: a 48 x 48 grid
-# is a stamp on screen. Nearest neighbour, by a whole factor, so each texel stays a visible square.
+# relight.image.PREVIEW_MIN_PX (texel-space previews are enlarged to at least this many pixels a side), spelled
+# here so that building a parser imports no JAX; tests/relight/test_cli_ux.py checks it against the library's.
 PREVIEW_MIN_PX = 256
 
 
 def upscale_nearest(img: np.ndarray, min_px: int = PREVIEW_MIN_PX) -> np.ndarray:
-    """``img`` [H, W, ...] repeated ``k`` times along H and W, with ``k`` the smallest whole factor that makes
-    its shorter side at least ``min_px`` (1: unchanged)."""
-    img = np.asarray(img)
-    k = max(1, -(-int(min_px) // max(1, min(img.shape[:2]))))
-    return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+    """``relight.image.upscale_nearest``: ``img`` [H, W, ...] enlarged nearest-neighbour by the smallest whole
+    factor that makes its shorter side at least ``min_px``."""
+    from ..image._preview import upscale_nearest as _upscale
+
+    return _upscale(img, min_px)
 
 
 def write_map_previews(folder: Path, albedo, specular, roughness) -> None:
@@ -471,6 +471,72 @@ def write_preview(path: Path, img: np.ndarray, exposure: float | None = None, cu
     png = to_uint8(tonemap(img, exposure=exposure, curve=curve))
     with writing(path):
         write_png(path, upscale_nearest(png, min_px) if min_px > 0 else png)
+
+
+def add_index_flag(p: argparse.ArgumentParser) -> None:
+    """``--no-index``: no index.html (the results viewer page, ``relight view``) in the output folder."""
+    p.add_argument("--no-index", action="store_true",
+                   help="do not write index.html, the results viewer (its rotation sweep costs about a second "
+                        "at small sizes); `relight view OUT` writes it later")
+
+
+# The sweep of the index.html a command writes into its output: fewer, smaller frames than `relight view`'s, so
+# that the page adds little to the command's time (`relight view OUT` makes a finer one).
+INDEX_FRAMES = 12
+INDEX_SIZE = 128
+
+
+def write_index_page(folder: Path, sweeps, command: str, quiet: int | bool = 0, committed: bool = False,
+                     location: Path | None = None) -> tuple[Path, int]:
+    """``folder/index.html``: ``relight.view.write_index`` with the rows and note ``sweeps()`` returns. A sweep
+    that fails (ValueError, RuntimeError, OSError: an input that moved, a map it cannot read) leaves a page
+    without a slider, saying why, and a warning on stderr: the page never fails the command. ``folder`` is a
+    result set being built (the command's ``tmp``; ``location``: the folder it becomes), or, ``committed``, a
+    finished folder: then it is locked while the page is written and, if it is a result set, its manifest
+    lists the new index.html (``relight view``). Returns (the page's path, the number of sweeps)."""
+    import sys
+
+    from ..io._resultset import FolderLock, is_result_set
+
+    folder = Path(folder)
+
+    def make() -> tuple[Path, int]:
+        from ..view import write_index
+
+        try:
+            rows, note = sweeps()
+        except (ValueError, RuntimeError, OSError) as err:
+            rows, note = [], f"no rotation slider: the sweep failed ({err})"
+            if int(quiet or 0) < 2:
+                print(f"relight {command}: warning: index.html: {note}", file=sys.stderr)
+        return write_index(folder, rows, note, location=location), len(rows)
+
+    if not committed:
+        with writing(folder / "index.html"):
+            return make()
+    if not is_result_set(folder):
+        with writing(folder / "index.html"):
+            return make()
+    with FolderLock(folder, f"relight {command}"):
+        with writing(folder / "index.html"):
+            path, n = make()
+        _list_in_manifest(folder, path)
+    return path, n
+
+
+def _list_in_manifest(folder: Path, path: Path) -> None:
+    """Put ``path`` (a file of the result set ``folder``, just written) into its manifest with its size and
+    SHA-256; the other entries are kept as they are (they are not re-hashed: a page never vouches for files
+    it did not write)."""
+    import json
+
+    from ..io._atomic import atomic_write_text
+    from ..io._resultset import MANIFEST, _sha256
+
+    doc = json.loads((folder / MANIFEST).read_text())
+    doc.setdefault("files", {})[path.relative_to(folder).as_posix()] = {"size": path.stat().st_size,
+                                                                        "sha256": _sha256(path)}
+    atomic_write_text(folder / MANIFEST, json.dumps(doc, indent=1) + "\n")
 
 
 def envmap_path(arg: str | None) -> Path:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import CLIError, bar, finish_parser, summary
+from ._common import INDEX_FRAMES, INDEX_SIZE, CLIError, add_index_flag, bar, finish_parser, summary, write_index_page
 
 _SUFFIX = ".zarr"
 
@@ -18,6 +18,7 @@ def add_parser(sub) -> None:
                                    "output is written under a temporary name and renamed into place.")
     p.add_argument("src", help="a capture folder (capture.json) or a capture store (.zarr)")
     p.add_argument("dst", help="the store to write (.zarr) from a folder, or the folder to write from a store")
+    add_index_flag(p)
     finish_parser(p, run)
 
 
@@ -53,6 +54,16 @@ def run(args) -> int:
     else:
         raise CLIError(f"{src}: neither a capture folder (capture.json) nor a capture store (.zarr with "
                        "relight-store.json)")
+    if not args.no_index:
+        # The library's converters commit DST as a result set; the page goes in afterwards, the folder locked and
+        # its manifest extended (as `relight view DST` does). A capture too large to read whole gets a page
+        # without a slider that says so.
+        def sweeps():
+            from ..view import folder_sweeps
+
+            return folder_sweeps(dst, None, INDEX_FRAMES, INDEX_SIZE)
+
+        write_index_page(dst, sweeps, "convert", args.quiet, committed=True)
     if summary(args):
         store = open_capture_store(dst if what == "store" else src)
         V, L, P, C = store.shape

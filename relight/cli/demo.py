@@ -15,7 +15,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import CLIError, add_envmap, add_image_size, add_out, at_least, bar, finish_parser, front_ring, summary
+from ._common import (
+    INDEX_FRAMES,
+    INDEX_SIZE,
+    CLIError,
+    add_envmap,
+    add_image_size,
+    add_index_flag,
+    add_out,
+    at_least,
+    bar,
+    finish_parser,
+    front_ring,
+    summary,
+    write_index_page,
+)
 
 # Shot noise: this many photo-electrons at the median observed radiance (1% relative noise there).
 _ELECTRONS_AT_MEDIAN = 1.0e4
@@ -41,6 +55,7 @@ def add_parser(sub) -> None:
                    help="BRDF / subsurface alternations (relight.fit_with_subsurface; default: 2)")
     add_envmap(d)
     add_image_size(d, 320, "preview image size in pixels")
+    add_index_flag(d)
     finish_parser(d, run)
 
 
@@ -56,14 +71,16 @@ def run(args) -> int:
     if args.envmap is not None:
         load_envmap(args.envmap)  # refuse a missing or corrupt map before minutes of simulation and fitting
     report = run_demo(Path(args.out), resolution=args.resolution, envmap=args.envmap, image_size=args.image_size,
-                      cameras=args.cameras, noise=args.noise, seed=args.seed, passes=args.passes, quiet=args.quiet)
+                      cameras=args.cameras, noise=args.noise, seed=args.seed, passes=args.passes, quiet=args.quiet,
+                      index=not args.no_index)
     if not summary(args):
         return 0
     e = report["errors"]
     print(f"wrote {args.out}/ (report.md, report.json, preview.png, maps/, truth/)")
     m = e["mfp_rel_identified"]["median"]
     mfp = "n/a" if m is None else f"{100 * m:.1f}%"
-    print(f"over {report['texels_seen']} seen texels, median: albedo {100 * e['albedo_rel']['median']:.2f}%, "
+    print(f"over {report['texels_seen']} seen texels, median: diffuse albedo "
+          f"{100 * e['diffuse_albedo_rel']['median']:.2f}%, "
           f"mean free path {mfp} ({100 * report['mfp_identified_fraction']:.0f}% of texel-channels identified), "
           f"relit PSNR vs truth {report['relit_psnr_db']:.1f} dB")
     return 0
@@ -123,8 +140,8 @@ def _errors(fitted, truth) -> dict:
     ident = np.zeros_like(mfp_t, bool) if ident is None else np.asarray(ident, bool)
     e_mfp = rel(mfp_f, mfp_t)
     out = {
-        "albedo_rel": _stats(rel(fitted.rho_d, truth.rho_d).mean(1)),
-        "specular_rel": _stats(rel(fitted.rho_s, truth.rho_s)[:, 0]),
+        "diffuse_albedo_rel": _stats(rel(fitted.rho_d, truth.rho_d).mean(1)),
+        "specular_albedo_rel": _stats(rel(fitted.rho_s, truth.rho_s)[:, 0]),
         "roughness_rel_lobe_texels": _stats(rel(fitted.alpha[:, :1], truth.alpha[:, :1])[lobe, 0]),
         "normal_deg": _stats(_angle_deg(fitted.normal, truth.normal)),
         "mfp_rel_all": _stats(e_mfp.reshape(-1)),
@@ -133,7 +150,15 @@ def _errors(fitted, truth) -> dict:
     for c, name in enumerate("rgb"):
         out[f"mfp_rel_identified_{name}"] = _stats(e_mfp[ident[:, c], c])
     out["subsurface_texels"] = int(np.sum(model == SUBSURFACE))
+    # The names `relight fit`'s report uses (diffuse / specular albedo); the demo's old keys stay one more
+    # version, as copies, for scripts that read them.
+    for old, new in DEPRECATED_KEYS.items():
+        out[old] = out[new]
     return out
+
+
+# Old report.json error keys of the demo -> the names shared with `relight fit` (deprecated; still written).
+DEPRECATED_KEYS = {"albedo_rel": "diffuse_albedo_rel", "specular_rel": "specular_albedo_rel"}
 
 
 def _psnr(est: np.ndarray, ref: np.ndarray, covered: np.ndarray) -> float:
@@ -145,8 +170,9 @@ def _psnr(est: np.ndarray, ref: np.ndarray, covered: np.ndarray) -> float:
 
 
 def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_size: int = 320, cameras: int = 3,
-             noise: float = 0.01, seed: int = 0, passes: int = 2, quiet: int | bool = 0) -> dict:
-    """Run the whole demo into ``out``; returns the report as a dict."""
+             noise: float = 0.01, seed: int = 0, passes: int = 2, quiet: int | bool = 0, index: bool = True) -> dict:
+    """Run the whole demo into ``out``; returns the report as a dict. ``index``: also write index.html (the
+    results viewer, with the capture relit image-based under a rotation sweep)."""
     import stage
     from brdf import atomic_write_text
 
@@ -211,6 +237,7 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
         "noise_relative_at_median": float(noise),
         "envmap": str(envmap),
         "errors": _errors(fitted, truth),
+        "deprecated_error_keys": DEPRECATED_KEYS,  # copies kept for old readers: old name -> current name
         "model_fraction": {MODELS[m]: float(np.mean(model == m)) for m in range(len(MODELS))},
         "subsurface_rung_fraction": (None if rung is None else
                                      {k: float(np.mean(np.asarray(rung) == i))
@@ -224,7 +251,8 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
     }
     settings = {"command": "relight demo", "out": str(out), "resolution": resolution, "envmap": str(envmap),
                 "image_size": image_size, "cameras": len(cams), "noise": noise, "seed": seed, "passes": passes,
-                "rig": "light_stage_x", "textures": "Lee Perry-Smith head scan (Infinite Realities, CC-BY 3.0)"}
+                "rig": "light_stage_x", "textures": "Lee Perry-Smith head scan (Infinite Realities, CC-BY 3.0)",
+                "camera": stage.camera_to_dict(view_cam, "relit")}  # the relit images' camera (relight view's)
     # The whole demo folder is one result set: built beside out, swapped in with its manifest.
     with output_set(out, "demo", quiet) as tmp:
         t0 = time.perf_counter()
@@ -234,6 +262,9 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
         atomic_write_text(tmp / "settings.json", json.dumps(settings, indent=2))
         atomic_write_text(tmp / "report.json", json.dumps(report, indent=2, allow_nan=False))
         atomic_write_text(tmp / "report.md", _report_md(report))
+        if index:
+            write_index_page(tmp, lambda: _index_sweeps(capture, surface, mesh, view_cam, env), "demo",
+                             quiet, location=out)
     return report
 
 
@@ -243,13 +274,19 @@ def _write(out, mesh, surface, truth, maps, camera, relit_truth, relit_fit, cove
     fit | error: relit (error: |fit - truth| / the 90th-percentile pixel, 0-10%),
     diffuse albedo (relative error 0-10%), red mean free path (0 to the truth's
     maximum; relative error 0-50%)."""
+    import stage
+
     from ..image._exposure import subject_exposure
     from ..image._preview import dilate, texture_view
     from ..image._tonemap import to_uint8, tonemap
-    from ..io import write_exr, write_png
+    from ..io import mesh_spec, write_exr, write_png
 
-    write_texture_set(out / "maps", texture_set(maps, surface))
-    write_texture_set(out / "truth", texture_set(truth, surface))
+    # The bundled head's spec and the relit camera, so that `relight view` (and `relight render`) can rebuild
+    # the texel surface and render the sets as the demo did.
+    info = mesh_spec(None, units=None, scale=None, center=None)
+    meta = {"source": "relight demo", "cameras": [stage.camera_to_dict(camera, "relit")], "rig": None}
+    write_texture_set(out / "maps", texture_set(maps, surface, surface_info=info, metadata=meta))
+    write_texture_set(out / "truth", texture_set(truth, surface, surface_info=info, metadata=meta))
     write_exr(out / "relit_truth.exr", relit_truth)
     write_exr(out / "relit_fit.exr", relit_fit)
     # Exposure from the subject: its median pixel to 0.35 before the filmic curve (sun glints would
@@ -305,8 +342,8 @@ def _report_md(r: dict) -> str:
         "Errors of the fit against the truth maps, over every seen texel (flagged ones included) unless the row "
         "says otherwise; `samples` counts texels (texel-channels for the mean free path).", "",
         "| map | median | 95th percentile | samples |", "| --- | --- | --- | --- |",
-        f"| diffuse albedo, relative (mean over RGB) | {_fmt(e['albedo_rel'])} |",
-        f"| specular F0, relative | {_fmt(e['specular_rel'])} |",
+        f"| diffuse albedo, relative (mean over RGB) | {_fmt(e['diffuse_albedo_rel'])} |",
+        f"| specular albedo (Schlick F0), relative | {_fmt(e['specular_albedo_rel'])} |",
         f"| roughness, relative (texels with a specular lobe) | {_fmt(e['roughness_rel_lobe_texels'])} |",
         f"| shading normal, degrees | {_fmt(e['normal_deg'], pct=False)} |",
         f"| mean free path, relative (all texel-channels) | {_fmt(e['mfp_rel_all'])} |",
@@ -326,3 +363,14 @@ def _report_md(r: dict) -> str:
         "| stage | seconds |", "| --- | --- |", *[f"| {k} | {v:.1f} |" for k, v in t.items()], "",
     ]
     return "\n".join(lines)
+
+
+def _index_sweeps(capture, surface, mesh, camera, env):
+    """index.html's slider: the simulated capture relit image-based (what the light stage measured, subsurface
+    scattering and noise included; memory speed). `relight view OUT` adds the truth and fitted maps rendered
+    model-based, which would cost the demo a second renderer compile."""
+    from ..view import capture_sweep
+
+    return [capture_sweep(capture, surface, mesh, camera, env, INDEX_FRAMES, INDEX_SIZE,
+                          "the simulated capture relit image-based (`relight view` adds truth and fit, "
+                          "model-based)")], None

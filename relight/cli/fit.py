@@ -31,9 +31,12 @@ import numpy as np
 # stage, brdf, JAX and the rest of relight are imported inside the functions that use them, so that
 # `relight fit --help` builds its parser without them.
 from ._common import (
+    INDEX_FRAMES,
+    INDEX_SIZE,
     PREVIEW_MIN_PX,
     CLIError,
     add_envmap,
+    add_index_flag,
     add_mesh_flags,
     add_out,
     add_rig_file_flags,
@@ -47,6 +50,7 @@ from ._common import (
     summary,
     upscale_nearest,
     warn_mesh_size,
+    write_index_page,
     write_json,
     write_map_previews,
     write_preview,
@@ -117,7 +121,8 @@ def add_parser(sub) -> None:
                    help=f"keep the finished blocks of an earlier run of this fit in OUT/{PARTS}/ (a killed run; a "
                         "finished one costs no fitting); refused if the capture, surface or a setting changed. "
                         f"Without it, OUT/{PARTS}/ is cleared and every block is fitted")
-    add_envmap(p, "environment map for the Mitsuba scene")
+    add_envmap(p, "environment map for the Mitsuba scene and index.html's rotation sweep")
+    add_index_flag(p)
     finish_parser(p, run)
 
 
@@ -286,6 +291,9 @@ def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, env
                    mitsuba_scene=None if scene is None else str(scene),
                    block=args.block, devices=parts["devices"], parts=str(out / PARTS),
                    streamed=not isinstance(capture, stage.Capture))
+    if not args.no_index:
+        write_index_page(tmp, lambda: _index_sweeps(tmp, photos, envmap, maps, surface, mesh, capture), "fit",
+                         args.quiet, location=out)
     if report["failed_fraction"] >= 0.5:
         import sys
 
@@ -303,6 +311,21 @@ def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, env
         print(f"wrote {out}/ (texture set, scene.xml, report.md); {report['samples']} texels, "
               f"{100 * report['failed_fraction']:.1f}% flagged{tail}{resumed}")
     return 0
+
+
+def _index_sweeps(tmp: Path, photos: bool, envmap: Path, maps, surface, mesh, capture):
+    """index.html's slider: the capture the maps were fitted from, relit image-based (read back whole if small
+    enough: ``relight.view.folder_sweeps``); without one (a photo capture, a large one), the fitted maps
+    rendered model-based through the capture's rig."""
+    from ..envmap import load_envmap
+    from ..view import folder_sweeps, maps_sweep
+
+    rows, note = ([], None) if photos else folder_sweeps(tmp, envmap, INDEX_FRAMES, INDEX_SIZE, model=False)
+    if rows:
+        return rows, note
+    return [maps_sweep(maps, surface, mesh, capture.cameras[0], load_envmap(envmap), rig=capture.rig,
+                       frames=INDEX_FRAMES, size=INDEX_SIZE,
+                       label="the fitted maps rendered model-based (the capture's rig)")], None
 
 
 def _read_texel(args, capture_dir: Path):
@@ -565,9 +588,13 @@ def _run_diligent(args, folder: Path, kwargs: dict) -> int:
     capture, surface = diligent_capture(d)
     times["read_s"] = time.perf_counter() - t0
     check_out(args.out, "fit")
+    out = Path(args.out)
     with output_set(args.out, "fit", args.quiet) as tmp:
         report = _diligent_fit(args, folder, d, capture, surface, kwargs, times, tmp)
-    out = Path(args.out)
+        if not args.no_index:
+            write_index_page(tmp, lambda: ([], "no rotation slider: a DiLiGenT object is lit by its calibrated "
+                                               "directional lights only (no rig to relight an environment with)"),
+                             "fit", args.quiet, location=out)
     if summary(args):
         e = report["diligent"].get("normal_error_deg")
         tail = "" if e is None else f"; mean normal error {e['mean']:.2f} deg"

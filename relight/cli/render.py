@@ -27,10 +27,13 @@ import numpy as np
 # JAX, stage and the library are imported inside the functions that use them, so that ``relight render
 # --help`` builds its parser without them (as the other commands do, tests/relight/test_cli_ux.py).
 from ._common import (
+    INDEX_FRAMES,
+    INDEX_SIZE,
     MIN_IMAGE_SIZE,
     CLIError,
     add_envmap,
     add_image_size,
+    add_index_flag,
     add_out,
     add_rig_file_flags,
     at_least,
@@ -42,6 +45,7 @@ from ._common import (
     parse_cameras,
     parse_rig,
     summary,
+    write_index_page,
     write_preview,
     write_settings,
     writing,
@@ -86,6 +90,7 @@ def add_parser(sub) -> None:
                         "subject's median luminance to 0.35 (relight.image.subject_exposure), background ignored")
     p.add_argument("--rotate", type=float, default=0.0, help="rotate the environment about +y by DEG degrees")
     p.add_argument("--frames", type=int, default=1, help="a turntable of N environment rotations over 360 degrees")
+    add_index_flag(p)
     finish_parser(p, run)
 
 
@@ -156,10 +161,11 @@ def _render(src: Path, kind: str, env, envmap: Path, angles, args, out: Path, tm
 
     t0 = time.perf_counter()
     subsurface = None
+    source = {}  # what index.html's sweep relights: the capture, or the maps with their renderer settings
     if kind == "capture":
-        views, cameras, method, mesh = _image_based(src, env, angles, args)
+        views, cameras, method, mesh = _image_based(src, env, angles, args, source)
     else:
-        views, cameras, method, subsurface, mesh = _model_based(src, env, angles, args)
+        views, cameras, method, subsurface, mesh = _model_based(src, env, angles, args, source)
     seconds = time.perf_counter() - t0
     for k, (frames, _, _) in enumerate(views):
         bad = [i for i, f in enumerate(frames) if not np.all(np.isfinite(f))]
@@ -204,12 +210,41 @@ def _render(src: Path, kind: str, env, envmap: Path, angles, args, out: Path, tm
                 write_exr(path, np.concatenate([rgb, cov[..., None]], axis=-1).astype(np.float32),
                           channels=_channels(rgb.shape[-1]), header=header)
             _preview(tmp / f"{folder}{name}.png", rgb, cov, exposure, args.background == "alpha")
+    if not args.no_index:
+        write_index_page(tmp, lambda: _index_sweeps(tmp, source, env, cameras[0], angles, exposure, names, folders,
+                                                    method), "render", args.quiet, location=out)
     if summary(args):
         tail = "" if subsurface is None else (f", subsurface on {subsurface['samples']} texels "
                                               f"(eta {subsurface['eta']:g})")
         cams = "" if len(cameras) == 1 else f" x {len(cameras)} cameras"
         print(f"wrote {out}/ ({len(angles)} frame(s){cams}, {kind}, method {method}{tail})")
     return 0
+
+
+def _index_sweeps(tmp: Path, source: dict, env, camera, angles, exposure: float, names, folders, method: str):
+    """index.html's slider: a turntable's own frames (the first camera's PNGs), else a sweep of the input from
+    the first camera at the render's exposure: a capture relit image-based; a map set's own capture relit
+    image-based when it is at hand (memory speed), else the maps model-based with the render's method."""
+    from ..view import capture_sweep, frames_sweep, map_set_capture, map_set_sweeps, maps_sweep
+
+    if len(angles) > 1:
+        return [frames_sweep([tmp / f"{folders[0]}{n}.png" for n in names], angles,
+                             f"rendered turntable, method {method}")], None
+    if "capture" in source:
+        return [capture_sweep(source["capture"], source["surface"], source["mesh"], camera, env, INDEX_FRAMES,
+                              INDEX_SIZE, "the capture relit image-based", exposure)], None
+    settings = dict(source["settings"])
+    rig = settings.pop("rig", None)
+    if map_set_capture(source["folder"]) is not None:
+        rows, note = map_set_sweeps(source["folder"], env, INDEX_FRAMES, INDEX_SIZE, camera, exposure, model=False,
+                                    rig=rig)
+        if rows:
+            return rows, note
+    # Monte Carlo per frame would cost more than the render itself: the quadrature instead.
+    sweep_method = "dense" if source["method"] == "reference" else source["method"]
+    return [maps_sweep(source["maps"], source["surface"], source["mesh"], camera, env, rig=rig,
+                       method=sweep_method, frames=INDEX_FRAMES, size=INDEX_SIZE, exposure=exposure,
+                       label=f"the maps rendered model-based, method {sweep_method}", **settings)], None
 
 
 def write_exr(path, image, **kw) -> None:
@@ -305,7 +340,7 @@ def _cameras(args, mesh, default) -> tuple:
     return cams
 
 
-def _image_based(src: Path, env, angles, args):
+def _image_based(src: Path, env, angles, args, source: dict):
     """Relight the capture's texel radiance and show it through every ``--camera``
     (``relight.render.image_based_view``: each texel from the nearest captured
     view that sees it). Returns, per camera, (frames, coverage, unseen pixel fraction)."""
@@ -315,6 +350,7 @@ def _image_based(src: Path, env, angles, args):
     with bar(None, "read capture (images)", args.quiet) as b:
         capture, surface, mesh, _ = load_texel_capture(src, progress=b)
     cameras = _cameras(args, mesh, capture.cameras[:1])
+    source.update(capture=capture, surface=surface, mesh=mesh)
     seen, held = seen_texels(capture, surface)
     views = []
     with bar(len(angles) * len(cameras), "render (frames)", args.quiet) as b:
@@ -349,7 +385,7 @@ def _map_set_rig(src: Path, textures, args):
                    "dome:N), or render with a method that needs no rig (--method dense)")
 
 
-def _model_based(src: Path, env, angles, args):
+def _model_based(src: Path, env, angles, args, source: dict):
     from ..envmap import rotation_matrix
     from ..io import load_texel_maps
 
@@ -367,6 +403,7 @@ def _model_based(src: Path, env, angles, args):
     rig_desc = None
     if args.method == "rig":
         settings["rig"], rig_desc = _map_set_rig(src, textures, args)
+    source.update(maps=maps, surface=surface, mesh=mesh, method=args.method, settings=settings, folder=src)
     views = []
     with bar(len(angles) * len(cameras), "render (frames)", args.quiet) as b:
         for camera in cameras:
@@ -442,15 +479,31 @@ def _run_photos(src: Path, args) -> int:
     total = np.maximum(np.sum(w_mean, axis=1), 1e-30)  # [K, 1]
     check_out(args.out, "render")
     with output_set(args.out, "render", args.quiet) as tmp:
-        _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, tmp, t0)
+        exposure = _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, tmp, t0)
+        if not args.no_index:
+            write_index_page(tmp, lambda: _photo_index_sweeps(tmp, capture, env, angles, exposure), "render",
+                             args.quiet, location=Path(args.out))
     if summary(args):
         print(f"wrote {args.out}/ ({capture.n_views} camera(s) x {len(angles)} frame(s), photo capture, method rig)")
     return 0
 
 
-def _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, out: Path, t0: float) -> None:
+def _photo_index_sweeps(tmp: Path, capture, env, angles, exposure: float):
+    """index.html's slider of a photo capture's render: its turntable frames (the first camera's), else the
+    first camera's photographs relit under a sweep of rotations at the render's exposure."""
+    from ..view import frames_sweep, photo_sweep
+
+    view = next(capture.iter_views())
+    if len(angles) > 1:
+        return [frames_sweep([tmp / view.name / f"relit_{k:03d}.png" for k in range(len(angles))], angles,
+                             f"rendered turntable of {view.name}")], None
+    return [photo_sweep(view.radiance, view.mask, capture.rig, env, INDEX_FRAMES,
+                        f"photographs of {view.name} relit image-based", exposure)], None
+
+
+def _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, out: Path, t0: float) -> float:
     """Every camera's relit frames (and previews), then settings.json, into ``out`` (the result set being
-    built)."""
+    built). Returns the previews' exposure."""
     from ..image import subject_exposure
     from ..render import relight_olat_sweep
 
@@ -488,3 +541,4 @@ def _relight_photos(capture, rig, weights, w_mean, total, angles, envmap, args, 
                    rig_file=str(capture.rig_file), lights=rig.num_lights, cameras=list(capture.names),
                    rotations_deg=angles.tolist(), preview_exposure_stops=exposure, seconds=round(seconds, 3),
                    outputs=outputs)
+    return exposure

@@ -32,37 +32,21 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-import brdf
-import skin_bssrdf
-import stage
-
-from ..image._preview import dilate, sample_texture, texture_view
-from ..io import (
-    CaptureStoreWriter,
-    default_chunks,
-    read_exr,
-    spec_mesh,
-    texel_surface,
-    write_capture,
-    write_exr,
-    write_maps,
-    write_photo_capture,
-)
-from ..io._resultset import open_result_set, write_manifest
-from ..io._store import MARKER as _STORE_MARKER  # the manifest: only a finished store is replaced
-from ..materials._maps import GGX, SUBSURFACE, material_maps
+# JAX, equinox, brdf, skin_bssrdf, stage and the rest of relight are imported inside the functions that use
+# them (the module's __getattr__ gives the names below on first use), so that `relight simulate --help` builds
+# its parser without them, as the other commands do (tests/relight/test_cli_ux.py).
 from ._common import (
+    INDEX_FRAMES,
+    INDEX_SIZE,
     MIN_IMAGE_SIZE,
     SUBSURFACE_ENERGY,
-    SUBSURFACE_PRESETS,
     CLIError,
     add_image_size,
+    add_index_flag,
     add_mesh_flags,
     add_out,
     add_rig_file_flags,
@@ -78,11 +62,85 @@ from ._common import (
     preset_mean_free_path,
     summary,
     warn_mesh_size,
+    write_index_page,
     write_map_previews,
     write_preview,
     write_settings,
     writing,
 )
+
+if TYPE_CHECKING:  # what _LAZY imports at run time, spelled for readers and linters
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    import brdf
+    import skin_bssrdf
+    import stage
+
+    from ..image._preview import dilate, sample_texture, texture_view
+    from ..io import (
+        CaptureStoreWriter,
+        default_chunks,
+        read_exr,
+        spec_mesh,
+        texel_surface,
+        write_capture,
+        write_exr,
+        write_maps,
+        write_photo_capture,
+    )
+    from ..io._resultset import open_result_set, write_manifest
+    from ..io._store import MARKER as _STORE_MARKER
+    from ..materials._maps import GGX, SUBSURFACE, material_maps
+
+# The library names this module uses, imported on first use: name -> (module, attribute). :func:`_load` puts
+# them all into the module's globals (``run`` and the functions used from outside call it first); reading one
+# as an attribute (``relight.cli.simulate.texel_surface``) loads it too (PEP 562). A name a test or script has
+# replaced (``relight.cli.simulate.texel_surface = ...``) is kept.
+_LAZY = {
+    "eqx": ("equinox", None), "jax": ("jax", None), "jnp": ("jax.numpy", None), "brdf": ("brdf", None),
+    "skin_bssrdf": ("skin_bssrdf", None), "stage": ("stage", None),
+    "dilate": ("relight.image._preview", "dilate"), "sample_texture": ("relight.image._preview", "sample_texture"),
+    "texture_view": ("relight.image._preview", "texture_view"),
+    **{n: ("relight.io", n) for n in ("CaptureStoreWriter", "default_chunks", "read_exr", "spec_mesh",
+                                      "texel_surface", "write_capture", "write_exr", "write_maps",
+                                      "write_photo_capture")},
+    "open_result_set": ("relight.io._resultset", "open_result_set"),
+    "write_manifest": ("relight.io._resultset", "write_manifest"),
+    "_STORE_MARKER": ("relight.io._store", "MARKER"),  # the manifest: only a finished store is replaced
+    "GGX": ("relight.materials._maps", "GGX"), "SUBSURFACE": ("relight.materials._maps", "SUBSURFACE"),
+    "material_maps": ("relight.materials._maps", "material_maps"),
+}
+
+
+# relight.cli._common.SUBSURFACE_PRESETS (the --subsurface presets, read from skin_bssrdf), spelled here for the
+# help text so that building the parser needs no JAX; tests/relight/test_cli_ux.py checks it against _common's.
+_PRESET_NAMES = ("apple", "chicken1", "chicken2", "cream", "ketchup", "marble", "potato", "skimmilk", "skin1", "skin2",
+                 "wholemilk")
+
+
+def _import(name: str):
+    import importlib
+
+    module, attr = _LAZY[name]
+    value = importlib.import_module(module)
+    return value if attr is None else getattr(value, attr)
+
+
+def _load() -> None:
+    """Import the library names of ``_LAZY`` into this module's globals (those not already set)."""
+    g = globals()
+    for name in _LAZY:
+        if name not in g:
+            g[name] = _import(name)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = globals()[name] = _import(name)
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def add_parser(sub) -> None:
@@ -107,7 +165,7 @@ def add_parser(sub) -> None:
                         "`relight render` relights it)")
     p.add_argument("--subsurface", default=None, metavar="PRESET|MAP",
                    help="subsurface scattering instead of the local diffuse term (texel space only): a measured "
-                        f"material of Jensen et al. 2001 ({', '.join(SUBSURFACE_PRESETS)}) giving the diffuse mean "
+                        f"material of Jensen et al. 2001 ({', '.join(_PRESET_NAMES)}) giving the diffuse mean "
                         "free path per channel (and eta), or an EXR of the mean free path in mm on the texel grid "
                         "(R, G, B or Y; resampled if another size; 0 = no subsurface at that texel). The albedo "
                         "stays the demo's diffuse albedo map (default: none)")
@@ -121,6 +179,7 @@ def add_parser(sub) -> None:
                         f"streamed into a capture store block by block; default {DEFAULT_BLOCK}; rounded down to a "
                         "multiple of the store's sample chunk). Peak memory grows with it, not with --resolution")
     add_out(p, f"capture folder to write, or a capture store if the name ends in {STORE_SUFFIX}")
+    add_index_flag(p)
     finish_parser(p, run)
 
 
@@ -230,8 +289,19 @@ def _noise(spec: str, read_noise: float):
     return stage.Sensor(exposure=exposure, read_noise=read_noise, shot_noise=True)
 
 
-@eqx.filter_jit
-def _sense_chunk(sensor: stage.Sensor, key, view, light0, texels, radiance, mask):
+def _sense_chunk(*args):
+    """``_sense_chunk_body`` compiled (``equinox.filter_jit``, made on first use so that importing this module
+    needs no JAX)."""
+    global _SENSE_JIT
+    if _SENSE_JIT is None:
+        _SENSE_JIT = eqx.filter_jit(_sense_chunk_body)
+    return _SENSE_JIT(*args)
+
+
+_SENSE_JIT = None
+
+
+def _sense_chunk_body(sensor: stage.Sensor, key, view, light0, texels, radiance, mask):
     """``stage.Sensor.expose`` on one chunk (radiance [Lc, Pc, C], mask [Lc, Pc]),
     each observation seeded by its own key fold_in(fold_in(fold_in(key, view),
     light), texel) (light = light0 + row, texel = ``texels`` [Pc], its index on
@@ -252,6 +322,7 @@ def sense_chunk(sensor: stage.Sensor | None, seed: int, view: int, light0: int, 
     """Sensor noise of one chunk of a texel capture, reproducible per
     observation (see ``_sense_chunk``): NumPy (radiance [Lc, Pc, C] float32 >= 0,
     mask [Lc, Pc] bool). ``sensor`` None: the chunk as it is (clipped at 0)."""
+    _load()
     if sensor is not None:
         radiance, mask = _sense_chunk(sensor, jax.random.PRNGKey(seed), jnp.asarray(view, jnp.int32),
                                       jnp.asarray(light0, jnp.int32), jnp.asarray(texels, jnp.int32),
@@ -380,6 +451,7 @@ def _geometry(args, times):
 
 
 def run(args) -> int:
+    _load()
     at_least("--resolution", args.resolution, 2)
     at_least("--image-size", args.image_size, MIN_IMAGE_SIZE)
     out = Path(args.out)
@@ -444,6 +516,9 @@ def _run_folder(args, out: Path, sensor, sss_source, tmp: Path) -> int:
     write_settings(tmp, "simulate", args, mesh=metadata["surface"], rig=rig_desc, lights=rig.num_lights,
                    views=len(cams), samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info,
                    timings_s={k: round(v, 3) for k, v in times.items()})
+    if not args.no_index:
+        write_index_page(tmp, lambda: _capture_index(radiance, valid, idx, rig, cams, surface, mesh), "simulate",
+                         args.quiet, location=out)
     if summary(args):
         tail = "" if sss_info is None else (f", subsurface {sss_info['source']}: mfp "
                                             + "/".join(f"{x:.3g}" for x in sss_info["mfp_mm"]) + " mm (R/G/B)")
@@ -451,11 +526,30 @@ def _run_folder(args, out: Path, sensor, sss_source, tmp: Path) -> int:
     return 0
 
 
+def _capture_index(radiance, valid, idx, rig, cams, surface, mesh):
+    """index.html's slider: the capture as it was written (noise, invalid observations; ``radiance`` [V, L,
+    H*W, C] on the grid, ``idx`` the seen texels) relit image-based under the bundled map (``relight.view``),
+    unless it is larger than a page's sweep takes (the page then says so)."""
+    from ..envmap import bundled_envmap_path, load_envmap
+    from ..view import capture_sweep
+    from ..view._sweep import MAX_CAPTURE_VALUES
+
+    V, L, _, C = radiance.shape
+    if V * L * len(idx) * C > MAX_CAPTURE_VALUES:
+        return [], (f"no rotation slider: the capture holds {V * L * len(idx) * C:,} values, more than the "
+                    f"{MAX_CAPTURE_VALUES:,} a page's sweep relights (relight render OUT --frames N makes a turntable)")
+    held = stage.Capture(radiance=jnp.asarray(radiance[:, :, idx]), mask=jnp.asarray(valid[:, :, idx]), rig=rig,
+                         cameras=tuple(cams))
+    return [capture_sweep(held, surface, mesh, cams[0], load_envmap(bundled_envmap_path()), INDEX_FRAMES,
+                          INDEX_SIZE, "the capture relit image-based (bundled map)")], None
+
+
 def store_blocks(n_texels: int, block: int, channels: int, dtype) -> tuple[int, int]:
     """(texels per block, store sample chunk) of the store form for a grid of
     ``n_texels`` and ``--block``: the chunk is relight.io's default (about 2 MiB
     of 8 lights) or the largest power of two <= block if smaller, and the block
     is rounded down to a multiple of it, so every block writes whole chunks."""
+    _load()
     pc = default_chunks((1, 8, n_texels, channels), dtype)[2]
     pc = max(1, min(pc, 1 << int(math.floor(math.log2(max(1, block))))))
     return max(pc, (block // pc) * pc), pc
@@ -508,6 +602,13 @@ def _run_store(args, out: Path, sensor, sss_source, tmp: Path) -> int:
                    samples_seen=int(len(seen)), texels=[H, W], subsurface=sss_info, form="store",
                    block_texels=int(block), store_chunks=[1, 8, int(pc), C], blocks=n_blocks,
                    timings_s={k: round(v, 3) for k, v in times.items()}, peak_rss_mib=memory)
+    if not args.no_index:
+        def sweeps():  # the store read back whole, unless it is too large for that (the page then says so)
+            from ..view import folder_sweeps
+
+            return folder_sweeps(tmp, None, INDEX_FRAMES, INDEX_SIZE)
+
+        write_index_page(tmp, sweeps, "simulate", args.quiet, location=out)
     if summary(args):
         print(f"wrote {out} (capture store: {V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels seen, "
               f"{n_blocks} blocks of {block} texels)")
@@ -672,6 +773,15 @@ def _run_image(args, out: Path, sensor, tmp: Path) -> int:
     times["write_s"] = time.perf_counter() - t0
     write_settings(tmp, "simulate", args, mesh=spec, rig=rig_desc, lights=rig.num_lights, views=len(cams),
                    pixels_seen=[int(m.sum()) for m in masks], timings_s={k: round(v, 3) for k, v in times.items()})
+    if not args.no_index:
+        def sweeps():
+            from ..envmap import bundled_envmap_path, load_envmap
+            from ..view import photo_sweep
+
+            return [photo_sweep(images[0], masks[0], rig, load_envmap(bundled_envmap_path()), INDEX_FRAMES,
+                                "camera 0's photographs relit image-based (bundled map)")], None
+
+        write_index_page(tmp, sweeps, "simulate", args.quiet, location=out)
     if summary(args):
         print(f"wrote {out}/ ({len(cams)} camera(s) x {rig.num_lights} lights, photo capture)")
     return 0

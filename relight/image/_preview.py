@@ -52,3 +52,16 @@ def dilate(texture: np.ndarray, valid: np.ndarray, iterations: int = 2) -> np.nd
         tex[grow] = acc[grow] / cnt[grow][:, None]
         ok |= grow
     return tex
+
+
+# Texel-space previews (one pixel a texel) are enlarged to at least this many pixels a side: a 48 x 48 grid
+# is a stamp on screen. Nearest neighbour, by a whole factor, so each texel stays a visible square.
+PREVIEW_MIN_PX = 256
+
+
+def upscale_nearest(img: np.ndarray, min_px: int = PREVIEW_MIN_PX) -> np.ndarray:
+    """``img`` [H, W, ...] repeated ``k`` times along H and W, with ``k`` the smallest whole factor that makes
+    its shorter side at least ``min_px`` (1: unchanged)."""
+    img = np.asarray(img)
+    k = max(1, -(-int(min_px) // max(1, min(img.shape[:2]))))
+    return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)

@@ -66,11 +66,27 @@ def test_top_level_help_and_version_import_no_jax():
 
 
 def test_command_help_imports_no_jax():
-    """fit, convert, demo and info build their parsers from relight.cli._common alone (NumPy allowed)."""
-    argv = [["fit", "--help"], ["convert", "--help"], ["demo", "--help"], ["info", "--help"]]
-    out = _heavy_imports(argv, '"jax"')
+    """Every command builds its parser from relight.cli._common alone (NumPy allowed): simulate's names its
+    --subsurface presets without reading skin_bssrdf, view's its defaults without relight.view."""
+    argv = [[name, "--help"] for name, _ in COMMANDS]
+    out = _heavy_imports(argv, '"jax", "equinox", "skin_bssrdf"')
     assert "HEAVY []" in out, out[-600:]
-    assert "usage: relight fit" in out and "usage: relight info" in out
+    for name, _ in COMMANDS:
+        assert f"usage: relight {name}" in out, name
+    assert "skin1" in out and "--no-index" in out
+
+
+def test_simulate_and_view_start_in_well_under_a_second():
+    """`relight simulate --help` used to import JAX at module load (about 2 s); now it takes what the others
+    take. Measured in a subprocess, best of 2 (the machine's load moves one run)."""
+    code = ("import sys, time; sys.path.insert(0, {root!r}); t = time.perf_counter(); from relight.cli import main\n"
+            "try:\n    main([{cmd!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+            "print('T', time.perf_counter() - t)")
+    for cmd in ("simulate", "view"):
+        best = min(float(re.search(r"T ([0-9.]+)", subprocess.run(
+            [sys.executable, "-c", code.format(root=str(ROOT), cmd=cmd)], capture_output=True, text=True,
+            timeout=60, cwd=ROOT).stdout).group(1)) for _ in range(2))
+        assert best < 1.0, (cmd, best)
 
 
 def test_parser_constants_are_the_librarys():
@@ -83,6 +99,11 @@ def test_parser_constants_are_the_librarys():
     assert fit.FIT_MODELS == (*relight.MODELS[:relight.MODELS.index("subsurface")], "auto")
     assert _common.RIG_UNITS == tuple(stage.POSITION_UNITS)
     assert _common.RIG_AXES == tuple(stage.AXES)
+    from relight.cli import simulate
+    from relight.image import PREVIEW_MIN_PX as LIBRARY_MIN_PX
+
+    assert simulate._PRESET_NAMES == _common.SUBSURFACE_PRESETS
+    assert PREVIEW_MIN_PX == LIBRARY_MIN_PX
 
 
 def test_the_dispatcher_help_lines_are_the_commands_own():
@@ -322,6 +343,17 @@ def test_quiet_keeps_the_summary_and_qq_hides_it(fitted, tmp_path, capsys, monke
     out = capsys.readouterr()
     assert out.out.startswith("wrote store") and out.err == ""
     assert main(["convert", str(fitted / "cap"), str(tmp_path / "b.zarr"), "-qq"]) == 0
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
+
+
+def test_render_quiet_keeps_its_summary_and_qq_hides_it(fitted, tmp_path, capsys, monkeypatch):
+    """render's summary line goes through _common.summary like every command's: -q keeps it, -qq hides it."""
+    monkeypatch.setenv("RELIGHT_CACHE_DIR", "off")
+    assert main(["render", str(fitted / "maps"), "--out", str(tmp_path / "a"), "--no-index", "-q"]) == 0
+    out = capsys.readouterr()
+    assert out.out.startswith(f"wrote {tmp_path / 'a'}/ (1 frame(s), maps, method rig") and out.err == ""
+    assert main(["render", str(fitted / "maps"), "--out", str(tmp_path / "b"), "--no-index", "-qq"]) == 0
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
 
