@@ -5,6 +5,8 @@ skin_bssrdf, stage and relight has its jaxtyping annotations checked at call tim
 (pyproject's --jaxtyping-packages, with the checker in tests/helpers.py)."""
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import jax
@@ -12,8 +14,16 @@ import pytest
 
 import tests.helpers  # noqa: F401  (the --jaxtyping-packages checker, tests.helpers.typechecker, must be loaded)
 
-# CLI tests must not fill the user's compilation cache (~/.cache/relight/jax); tests of the cache set their own.
-os.environ.setdefault("RELIGHT_CACHE_DIR", "off")
+# One persistent compilation cache for the whole run, shared by the xdist workers and the CLI subprocesses, in a
+# fresh temporary folder (never the user's ~/.cache/relight/jax; tests of the cache set their own): the suite
+# compiles many identical programs (the same fit, simulate and render shapes from different tests), and XLA's CPU
+# compile is most of its time. A cache hit returns the executable XLA would have built; nothing else changes.
+_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
+TEST_CACHE_DIR = Path(tempfile.gettempdir()) / f"relight-test-jax-cache-{_RUN}"
+os.environ.setdefault("RELIGHT_CACHE_DIR", str(TEST_CACHE_DIR))
+jax.config.update("jax_compilation_cache_dir", os.environ["RELIGHT_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
@@ -33,3 +43,24 @@ def shared_data():
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data not found at {SHARED_DATA} (real-data tests need ../shared/data)")
     return SHARED_DATA
+
+
+@pytest.fixture(autouse=True)
+def _small_index_pages(request, monkeypatch):
+    """Every command still writes its index.html (inside its result set, listed in the manifest), but outside the
+    viewer's own tests with a 2-frame, 32 px rotation sweep: the page itself, at the commands' 12 frames, is tested
+    in tests/relight/test_view.py, and the full sweep in every CLI test would cost the suite minutes."""
+    if request.module.__name__.rsplit(".", 1)[-1] == "test_view":
+        return
+    import importlib
+
+    for name in ("simulate", "fit", "render", "demo"):
+        module = importlib.import_module(f"relight.cli.{name}")
+        monkeypatch.setattr(module, "INDEX_FRAMES", 2)
+        monkeypatch.setattr(module, "INDEX_SIZE", 32)
+
+
+def pytest_sessionfinish(session):
+    """The run's compilation cache goes with the run (the controller removes it; workers have workerinput)."""
+    if not hasattr(session.config, "workerinput") and os.environ.get("RELIGHT_CACHE_DIR") == str(TEST_CACHE_DIR):
+        shutil.rmtree(TEST_CACHE_DIR, ignore_errors=True)
