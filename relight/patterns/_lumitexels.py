@@ -142,6 +142,16 @@ def sample_geometry(key, n: int, camera_center, ranges: ParameterRanges = TRAIN_
     return position, normal, wo
 
 
+def _local_lighting(rig: stage.Rig, position, normal, tangent, bitangent, wo):
+    """(wi [L, N, 3], wo [N, 3] in each sample's local frame, irradiance [L, N, C]) of every light at
+    every sample, in the dtype of ``position``: stage's ``incident_light`` and ``to_local``."""
+    dt = jnp.asarray(position).dtype
+    c = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    wi_world, irr = stage.incident_light(c(rig.position), c(rig.intensity), rig.near_field, c(position))
+    t, b, n = c(tangent), c(bitangent), c(normal)
+    return stage.to_local(wi_world, t, b, n), stage.to_local(c(wo), t, b, n), irr
+
+
 def lumitexels(rig: stage.Rig, position, normal, tangent, bitangent, wo, rho_d, rho_s, alpha,
                visible=None) -> tuple[Array, Array, Array]:
     """(radiance [N, L, C], white [N, L, C], lit [N, L]) of Lambert + GGX samples
@@ -149,10 +159,7 @@ def lumitexels(rig: stage.Rig, position, normal, tangent, bitangent, wo, rho_d, 
     (optional): the light visibility (shadowing), combined with the horizon."""
     dt = jnp.asarray(position).dtype
     c = lambda x: jnp.asarray(x, dt)  # noqa: E731
-    wi_world, irr = stage.incident_light(c(rig.position), c(rig.intensity), rig.near_field, c(position))
-    t, b, n = c(tangent), c(bitangent), c(normal)
-    wi = stage.to_local(wi_world, t, b, n)  # [L, N, 3]
-    wo_l = stage.to_local(c(wo), t, b, n)  # [N, 3]
+    wi, wo_l, irr = _local_lighting(rig, position, normal, tangent, bitangent, wo)
     lit = wi[..., 2] > 0
     if visible is not None:
         lit = lit & jnp.asarray(visible).T
@@ -176,13 +183,9 @@ def specular_bases(rig: stage.Rig, position, normal, tangent, bitangent, wo, lit
     rho_d white + F0 basis_2j + basis_2j+1. ``lit`` [N, L] the light visibility.
     Shape [N, L, C, 2J] (C = the rig's channels)."""
     dt = jnp.asarray(position).dtype
-    c = lambda x: jnp.asarray(x, dt)  # noqa: E731
-    wi_world, irr = stage.incident_light(c(rig.position), c(rig.intensity), rig.near_field, c(position))
-    t, b, n = c(tangent), c(bitangent), c(normal)
-    wi = stage.to_local(wi_world, t, b, n)
-    wo_l = stage.to_local(c(wo), t, b, n)
+    wi, wo_l, irr = _local_lighting(rig, position, normal, tangent, bitangent, wo)
     vis = jnp.asarray(lit).T & (wi[..., 2] > 0)
-    N = n.shape[0]
+    N = wo_l.shape[0]
     out = []
     for a in alphas:
         al = jnp.full((N, 1), a, dt)
