@@ -22,9 +22,14 @@ from ._gaussians import fit_sum_of_gaussians as fit_sum_of_gaussians
 from ._multipole import Multipole as Multipole
 from ._operator import DiffusionOperator as DiffusionOperator
 from ._presets import JENSEN2001 as JENSEN2001
+from ._presets import SKIN_ETA as SKIN_ETA
 from ._presets import MeasuredMaterial as MeasuredMaterial
 from ._presets import preset as preset
+from ._radius import MIN_OPERATOR_RADIUS_MM as MIN_OPERATOR_RADIUS_MM
+from ._radius import OPERATOR_ENERGY as OPERATOR_ENERGY
 from ._radius import energy_radius as energy_radius
+from ._radius import operator_radius as operator_radius
+from ._radius import widest_operator_radius as widest_operator_radius
 from ._texture import TextureSpaceDiffusion as TextureSpaceDiffusion
 from ._texture import gaussian_blur as gaussian_blur
 from ._texture import gaussian_kernel1d as gaussian_kernel1d

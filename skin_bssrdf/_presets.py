@@ -22,6 +22,11 @@ import jax.numpy as jnp
 from ._better_dipole import BetterDipole
 from ._dipole import Dipole
 
+# Relative refractive index of skin (epidermis over air), the one home of the value every skin default uses
+# (stage.Subsurface, the fitter, the renderer, the CLI): Jensen et al. 2001 and Donner & Jensen 2005 use 1.4
+# for skin; Tuchin's measurements of the stratum corneum give 1.4-1.55.
+SKIN_ETA = 1.4
+
 
 @dataclasses.dataclass(frozen=True)
 class MeasuredMaterial:

@@ -36,3 +36,59 @@ def energy_radius(profile: AbstractProfile, fraction: float = 0.99) -> Float[Arr
 def _cum(profile, r):
     """cumulative at per-channel radii r [*pbatch, C] -> [*pbatch, C], one channel at a time."""
     return jnp.stack([profile.cumulative(r[..., c])[..., c] for c in range(r.shape[-1])], axis=-1)
+
+
+# The one rule for the diffusion operator's neighbour radius, used by every caller that builds an operator
+# (stage simulation, the fitter, the renderer, the demo): the radius holding this fraction of the profile's
+# energy, at the widest sample that scatters. The 1% beyond it is dropped (DiffusionOperator.tail reports it).
+OPERATOR_ENERGY = 0.99
+# Smallest radius (mm): a micron, below any texel, so an operator always has the sample's own disc.
+MIN_OPERATOR_RADIUS_MM = 1e-3
+
+
+def operator_radius(profile: AbstractProfile, where=None, fraction: float = OPERATOR_ENERGY) -> float:
+    """The diffusion operator's neighbour radius for ``profile`` (mm).
+
+    Args:
+        profile: a diffusion profile with per-sample parameters, batch [P, C] (or [C]).
+        where: optional boolean [P]: the samples that scatter; the others are ignored.
+        fraction: the energy fraction inside the radius (default ``OPERATOR_ENERGY``, 0.99).
+
+    Returns:
+        The largest :func:`energy_radius` over the chosen samples and channels, floored at
+        ``MIN_OPERATOR_RADIUS_MM``; the floor when no sample scatters.
+    """
+    import numpy as np
+
+    r = np.asarray(energy_radius(profile, fraction), np.float64)
+    if where is not None:
+        sel = np.asarray(where, bool).reshape(-1)
+        r = r.reshape(sel.shape[0], -1)[sel]
+    r = r[np.isfinite(r)]
+    return max(float(np.max(r)) if r.size else MIN_OPERATOR_RADIUS_MM, MIN_OPERATOR_RADIUS_MM)
+
+
+def widest_operator_radius(mfp_max_mm: float, fraction: float = OPERATOR_ENERGY) -> float:
+    """The operator radius (mm) that covers every Christensen-Burley profile (diffuse mean free
+    path parametrisation, "dmfp") with a mean free path up to ``mfp_max_mm``, whatever its albedo.
+
+    The profile's normalised shape depends only on d = mfp / s(A), and s(A) = 3.5 + 100 (A - 0.33)^4
+    is smallest (3.5) at A = 0.33, so that albedo gives the widest profile. Used where the profiles
+    are not known yet (the fitter searching mean free paths up to a bound).
+
+    Args:
+        mfp_max_mm: the largest diffuse mean free path (mm), > 0.
+        fraction: the energy fraction inside the radius.
+
+    Returns:
+        The radius in mm.
+
+    References:
+        Christensen & Burley 2015, "Approximate Reflectance Profiles for Efficient Subsurface
+        Scattering", eq. 8 (the dmfp scale fit) and eq. 11 (the CDF).
+    """
+    from ._burley import Burley
+
+    check("widest_operator_radius", "mfp_max_mm", mfp_max_mm, lo=0.0, lo_open=True)
+    return operator_radius(Burley.from_mean_free_path(jnp.asarray([0.33]), jnp.asarray([float(mfp_max_mm)]),
+                                                      config="dmfp"), fraction=fraction)

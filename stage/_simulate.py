@@ -33,6 +33,7 @@ import numpy as np
 
 import brdf
 from brdf import safe_normalize
+from skin_bssrdf import SKIN_ETA
 
 from ._camera import Camera
 from ._capture import Capture
@@ -64,11 +65,11 @@ class Subsurface(eqx.Module):
     """Subsurface scattering for ``simulate``: a skin_bssrdf ``profile``
     (parameters [C] or [P, C]), the ``operator`` (skin_bssrdf.DiffusionOperator
     built on the same samples) and the relative index of refraction ``eta``
-    (skin: 1.4) for the Fresnel transmittances in and out."""
+    (default: skin's, ``skin_bssrdf.SKIN_ETA``) for the Fresnel transmittances in and out."""
 
     profile: eqx.Module
     operator: eqx.Module
-    eta: float = 1.4
+    eta: float = SKIN_ETA
 
 
 def split_material(material):

@@ -21,6 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import stage
+from skin_bssrdf import SKIN_ETA
 
 from ._maps import SUBSURFACE, MaterialMaps, material_maps
 
@@ -28,9 +29,8 @@ __all__ = ["ALBEDO_MAX", "ALBEDO_SCALE", "ALPHA_RANGE", "EARS", "F0_SKIN", "LIPS
            "REGION_NAMES", "SKIN", "SKIN_DMFP_MM", "SKIN_ETA", "SPEC_F0_RANGE", "SkinRegions", "SkinTruth",
            "skin_maps", "skin_regions"]
 
-# Skin's refractive index for the specular (stratum corneum with its lipid film). 1.4 gives F0 = 0.028, the value
-# d'Eon & Luebke 2007 (GPU Gems 3, ch. 14) use for skin.
-SKIN_ETA = 1.4
+# Skin's refractive index (skin_bssrdf.SKIN_ETA, its one home) also sets the specular: 1.4 gives F0 = 0.028, the
+# value d'Eon & Luebke 2007 (GPU Gems 3, ch. 14) use for skin.
 # Normal-incidence Fresnel reflectance ((eta - 1) / (eta + 1))^2 = 0.0278 (Schlick's F0).
 F0_SKIN = ((SKIN_ETA - 1.0) / (SKIN_ETA + 1.0)) ** 2
 # rho_s = F0_SKIN * lerp(SPEC_F0_RANGE, s) for the specular map's value s in [0, 1]: 0.014 .. 0.042. The top,
