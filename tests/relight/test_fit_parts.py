@@ -14,12 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import stage
 from relight import fit
 from relight.fitting import PartsFingerprintError, PartsIncompleteError, fit_parts, merge_parts
 
-from ..stage.geometry import uv_sphere
+from ..scenes import noisy_ggx_sphere
 
 ROOT = Path(__file__).resolve().parents[2]
 FIELDS = ("rho_d", "rho_s", "alpha", "normal", "tangent", "model", "residual", "heldout", "result", "steps",
@@ -32,22 +31,7 @@ BLOCK = 24
 def _scene(seed=0):
     """A noisy GGX sphere, one camera, a 42-light dome (~80 texels); deterministic (also built, the same
     bytes, in each subprocess of the two-process test)."""
-    mesh = uv_sphere(radius=50.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 16)
-    rig = stage.geodesic_dome(1)
-    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=128, height=128)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    p = np.asarray(surface.position)
-    keep = np.nonzero(cv[0] & (p[:, 2] / 50.0 > 0.3))[0]
-    surface = surface.subset(keep)
-    n = surface.num_samples
-    rng = np.random.default_rng(seed)
-    rho, f0, alpha = (jnp.asarray(rng.uniform(lo, hi, (n, k)), jnp.float32)
-                      for lo, hi, k in ((0.1, 0.8, 3), (0.02, 0.08, 1), (0.15, 0.6, 1)))
-    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[keep], cv[:, keep])
-    scale = jnp.asarray(1 + 0.02 * rng.standard_normal(cap.radiance.shape), jnp.float32)
-    return stage.Capture(cap.radiance * scale, cap.mask, cap.rig, cap.cameras), surface
+    return noisy_ggx_sphere(res=16, seed=seed)
 
 
 @pytest.fixture(scope="module")

@@ -10,40 +10,18 @@ import textwrap
 import tracemalloc
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import stage
 from relight import fit
 
-from ..stage.geometry import uv_sphere
+from ..scenes import noisy_ggx_sphere as _scene  # (capture, surface); also imported by the subprocess below
 
 ROOT = Path(__file__).resolve().parents[2]
 # Every per-sample field of a Fit.
 FIELDS = ("rho_d", "rho_s", "alpha", "normal", "tangent", "model", "residual", "heldout", "result", "steps",
           "observed", "uncertainty")
-
-
-def _scene(res=24, seed=0, noise=0.02):
-    """A noisy GGX sphere seen by one camera under a 42-light dome (~160 texels)."""
-    mesh = uv_sphere(radius=50.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, res)
-    rig = stage.geodesic_dome(1)
-    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=128, height=128)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    p = np.asarray(surface.position)
-    keep = np.nonzero(cv[0] & (p[:, 2] / 50.0 > 0.3))[0]
-    surface = surface.subset(keep)
-    n = surface.num_samples
-    rng = np.random.default_rng(seed)
-    rho, f0, alpha = (jnp.asarray(rng.uniform(lo, hi, (n, k)), jnp.float32)
-                      for lo, hi, k in ((0.1, 0.8, 3), (0.02, 0.08, 1), (0.15, 0.6, 1)))
-    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[keep], cv[:, keep])
-    scale = jnp.asarray(1 + noise * rng.standard_normal(cap.radiance.shape), jnp.float32)
-    return stage.Capture(cap.radiance * scale, cap.mask, cap.rig, cap.cameras), surface
 
 
 @pytest.fixture(scope="module")
