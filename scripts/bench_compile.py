@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import ROOT, cpu_model
 
 _CHILD = """
 import json, sys, time
@@ -85,7 +85,7 @@ def main() -> None:
         for r in (ra, rb):  # the inputs, made without a cache so the fits' cold runs start cold
             caps[r] = tmp / f"cap{r}"
             _child(["--cache-dir", "off", *_simulate_argv(r, caps[r])])
-        from relight.io._texel import open_texel_capture
+        from relight.io import open_texel_capture
 
         texels = {r: open_texel_capture(caps[r]).surface.num_samples for r in (ra, rb)}
 
@@ -115,7 +115,7 @@ def main() -> None:
 
 
 def _markdown(rows, args, entries: int, size: int) -> str:
-    cpu = _cpu()
+    cpu = cpu_model()
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines = ["# Persistent compilation cache: cold against warm", "",
              f"`{' '.join(['.venv/bin/python', 'scripts/bench_compile.py', '--res', *map(str, args.res)])}`, "
@@ -150,16 +150,6 @@ def _markdown(rows, args, entries: int, size: int) -> str:
         "capture: the solver's do not (their sample count is the chunk, their observation count a bucket: "
         "`relight.fitting._driver._obs_bucket`), the per-texel map assembly and the report's do.", ""]
     return "\n".join(lines)
-
-
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 if __name__ == "__main__":

@@ -43,7 +43,6 @@ compiled code) after each stage.
 from __future__ import annotations
 
 import argparse
-import resource
 import sys
 import time
 from pathlib import Path
@@ -51,106 +50,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
-import brdf
 import relight
 import stage
-
-FIG = Path(__file__).resolve().parent.parent / "docs" / "figures"
-
-
-# --------------------------------------------------------------------------- scenes (shared by the fit scripts)
-
-def frames_from_normals(n):
-    """Tangent / bitangent [P, 3] orthogonal to unit normals n [P, 3] (world +x projected, else +y)."""
-    n = np.asarray(n, np.float64)
-    g = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    t = g - n * np.sum(n * g, 1, keepdims=True)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    return t, np.cross(n, t)
-
-
-def make_surface(position, normal) -> stage.Surface:
-    """A ``stage.Surface`` of independent samples (positions mm, unit normals)."""
-    P = len(position)
-    t, b = frames_from_normals(normal)
-    f = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
-    return stage.Surface(position=f(position), normal=f(normal), tangent=f(t), bitangent=f(b),
-                         uv=f(np.zeros((P, 2))), area=f(np.ones(P)), texel_index=jnp.arange(P),
-                         face=jnp.zeros(P, jnp.int32), resolution=(1, P))
-
-
-def sphere_surface(n: int, seed: int = 0, radius: float = 50.0, min_cos: float = 0.3):
-    """n samples on the camera-facing (+z) part of a sphere at the origin, cos(normal, z) >= min_cos."""
-    rng = np.random.default_rng(seed)
-    z = rng.uniform(min_cos, 1.0, n)
-    ph = rng.uniform(0, 2 * np.pi, n)
-    r = np.sqrt(1 - z * z)
-    nrm = np.stack([r * np.cos(ph), r * np.sin(ph), z], 1)
-    return make_surface(radius * nrm, nrm)
-
-
-def tilt(surface: stage.Surface, deg, seed: int = 1) -> stage.Surface:
-    """The surface with each shading normal tilted by ``deg`` (scalar or [P]) in a random azimuth."""
-    rng = np.random.default_rng(seed)
-    P = surface.num_samples
-    phi = rng.uniform(0, 2 * np.pi, P)
-    th = np.deg2rad(np.broadcast_to(np.asarray(deg, np.float64), (P,)))
-    T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
-    n = (np.sin(th) * np.cos(phi))[:, None] * T + (np.sin(th) * np.sin(phi))[:, None] * B + np.cos(th)[:, None] * N
-    return make_surface(np.asarray(surface.position), n / np.linalg.norm(n, axis=1, keepdims=True))
-
-
-def front_camera(distance: float = 1000.0):
-    return stage.look_at((0.0, 0.0, distance), fov_deg=10, width=256, height=256)
-
-
-def truth(P: int, seed: int = 0, alpha=(0.1, 0.6)):
-    rng = np.random.default_rng(seed)
-    rho = rng.uniform(0.1, 0.8, (P, 3))
-    f0 = rng.uniform(0.02, 0.08, (P, 1))
-    a = rng.uniform(alpha[0], alpha[1], (P, 1)) if isinstance(alpha, tuple) else np.asarray(alpha).reshape(P, 1)
-    return rho, f0, a
-
-
-def capture_of(surface, rig, cam, rho, f0, alpha, noise: float, seed: int = 2, shadow: float = 0.0):
-    """Simulated OLAT capture (no occluders: every light in front of a sample is visible),
-    radiance x (1 + noise N(0,1)); ``shadow``: that fraction of valid observations zeroed
-    but left in the mask (unmasked cast shadows)."""
-    P, L = surface.num_samples, rig.num_lights
-    mat = brdf.lambert_ggx(jnp.asarray(rho, jnp.float32), jnp.asarray(f0, jnp.float32), jnp.asarray(alpha, jnp.float32))
-    cap = stage.simulate(surface, rig, [cam], mat, np.ones((P, L), bool), np.ones((1, P), bool))
-    rng = np.random.default_rng(seed)
-    rad = np.asarray(cap.radiance, np.float32)
-    if noise > 0:
-        rad = rad * (1 + noise * rng.standard_normal(rad.shape)).astype(np.float32)
-    if shadow > 0:
-        hit = np.asarray(cap.mask) & (rng.uniform(size=cap.mask.shape) < shadow)
-        rad = np.where(hit[..., None], 0.0, rad).astype(np.float32)
-    return stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
-
-
-def errors(f: relight.Fit, rho, alpha, normal):
-    """Per-sample errors: relative albedo (mean over RGB), relative roughness, normal angle (deg)."""
-    e_rho = np.mean(np.abs(np.asarray(f.rho_d) - rho) / rho, axis=1)
-    e_alpha = np.abs(np.asarray(f.alpha)[:, 0] - alpha[:, 0]) / alpha[:, 0]
-    c = np.sum(np.asarray(f.normal, np.float64) * np.asarray(normal, np.float64), 1)
-    e_n = np.rad2deg(np.arccos(np.clip(c, -1, 1)))
-    return e_rho, e_alpha, e_n
-
-
-def maxrss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def machine() -> str:
-    try:
-        model = [l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")][0]
-    except (OSError, IndexError):
-        model = "unknown CPU"
-    import os
-    return f"{model}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()})"
-
 
 # --------------------------------------------------------------------------- the numpy / scipy reference
 

@@ -25,15 +25,13 @@ import argparse
 import datetime
 import json
 import os
-import platform
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+from _common import ROOT, cpu_model, load_surface, run_json, save_surface, texel_sphere_capture, tiled
+
 STORE_CHUNK = 512
 
 
@@ -41,14 +39,13 @@ def child(args) -> None:
     """One device count: fit the store twice on args.ndev devices; print JSON timings and the maps' path."""
     import jax
     import numpy as np
-    from bench_fit_memory import _load_surface
 
     import relight
     from relight.io import open_capture_store
 
     assert len(jax.local_devices()) >= args.ndev, jax.local_devices()
     store = open_capture_store(args.store)
-    surface = _load_surface(Path(args.store).with_suffix(".npz"))
+    surface = load_surface(Path(args.store).with_suffix(".npz"))
     kw = dict(model=args.model, chunk=args.chunk, block=args.block, devices=args.ndev)
     times = []
     for _ in range(1 + args.repeat):
@@ -65,34 +62,15 @@ def child(args) -> None:
 
 
 def prepare(args) -> None:
-    from bench_fit_memory import _save_surface, _scene, _tiled
-
     from relight.io import write_capture_store
 
-    cap, surface = _scene(args.res)
-    tiled = _tiled(cap, surface, args.texels)
-    store = write_capture_store(Path(args.out) / "capture.zarr", tiled[0],
+    cap, surface = texel_sphere_capture(args.res)
+    rep = tiled(cap, surface, args.texels)
+    store = write_capture_store(Path(args.out) / "capture.zarr", rep[0],
                                 chunks=(1, 8, min(args.texels, STORE_CHUNK), 3))
-    _save_surface(store.with_suffix(".npz"), tiled[1])
+    save_surface(store.with_suffix(".npz"), rep[1])
     V, L, P0, _ = cap.shape
     print(json.dumps(dict(views=V, lights=L, texels=P0, store=str(store))))
-
-
-def _run(cmd, env=None) -> dict:
-    run = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False, env=env)
-    if run.returncode:
-        raise SystemExit(f"child failed ({' '.join(cmd)}):\n{run.stderr[-3000:]}")
-    return json.loads(run.stdout.strip().splitlines()[-1])
-
-
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def main(argv=None) -> None:
@@ -121,12 +99,12 @@ def main(argv=None) -> None:
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        scene = _run([sys.executable, __file__, "--prepare", "--out", tmp, *common])
+        scene = run_json([sys.executable, __file__, "--prepare", "--out", tmp, *common])
         for d in args.devices:
             env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
             env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={d}"
-            r = _run([sys.executable, __file__, "--child", "--store", scene["store"], "--out", tmp, "--ndev", str(d),
-                      *common], env)
+            r = run_json([sys.executable, __file__, "--child", "--store", scene["store"], "--out", tmp, "--ndev",
+                          str(d), *common], env)
             z = np.load(r["maps"])
             if not rows:
                 ref = {k: z[k] for k in ("rho_d", "alpha")}
@@ -138,7 +116,7 @@ def main(argv=None) -> None:
     cores = os.cpu_count()
     lines = ["# relight.fit on several (forced host) devices", "",
              f"`.venv/bin/python scripts/bench_fit_devices.py --texels {args.texels} --devices "
-             f"{' '.join(map(str, args.devices))} --chunk {args.chunk} --repeat {args.repeat}`, {date}, {_cpu()} "
+             f"{' '.join(map(str, args.devices))} --chunk {args.chunk} --repeat {args.repeat}`, {date}, {cpu_model()} "
              f"({cores} cores, shared with other jobs), JAX CPU. Capture: {scene['views']} view, "
              f"{scene['lights']} lights, {scene['texels']} distinct texels of a GGX sphere repeated to "
              f"N = {args.texels}, read from a capture store; model {args.model}, chunk {args.chunk} (split over "

@@ -23,72 +23,16 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import tempfile
 import time
 import tracemalloc
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import load_surface, run_json, save_surface, texel_sphere_capture, tiled
+
 # Samples per store chunk: a divisor of every block measured, so a block read decodes only its own chunks.
 STORE_CHUNK = 512
-
-
-def _scene(res: int):
-    """(capture, surface) of a GGX sphere seen from +z under stage.geodesic_dome(2)."""
-    import jax.numpy as jnp
-    import numpy as np
-
-    import brdf
-    import stage
-
-    sys.path.insert(0, str(ROOT))
-    from tests.stage.geometry import uv_sphere
-
-    mesh = uv_sphere(radius=50.0, n_lat=32, n_lon=64)
-    surface = stage.texel_samples(mesh, res)
-    rig = stage.geodesic_dome(2)
-    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=256, height=256)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    keep = np.nonzero(cv[0] & (np.asarray(surface.position)[:, 2] > 15.0))[0]
-    surface = surface.subset(keep)
-    n = surface.num_samples
-    rng = np.random.default_rng(0)
-    rho, f0, alpha = (jnp.asarray(rng.uniform(lo, hi, (n, k)), jnp.float32)
-                      for lo, hi, k in ((0.1, 0.8, 3), (0.02, 0.08, 1), (0.15, 0.6, 1)))
-    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[keep], cv[:, keep])
-    return cap, surface
-
-
-def _tiled(cap, surface, n: int):
-    import numpy as np
-
-    import stage
-
-    idx = np.resize(np.arange(surface.num_samples), n)
-    return (stage.Capture(cap.radiance[:, :, idx], cap.mask[:, :, idx], cap.rig, cap.cameras),
-            surface.subset(idx))
-
-
-_SURFACE = ("position", "normal", "tangent", "bitangent", "uv", "area", "texel_index", "face")
-
-
-def _save_surface(path: Path, surface) -> None:
-    import numpy as np
-
-    np.savez(path, resolution=np.asarray(surface.resolution), **{k: np.asarray(getattr(surface, k)) for k in _SURFACE})
-
-
-def _load_surface(path: Path):
-    import jax.numpy as jnp
-    import numpy as np
-
-    import stage
-
-    z = np.load(path)
-    return stage.Surface(**{k: jnp.asarray(z[k]) for k in _SURFACE}, resolution=tuple(int(r) for r in z["resolution"]))
 
 
 def child(args) -> None:
@@ -99,7 +43,7 @@ def child(args) -> None:
     from relight.io import open_capture_store
 
     store = open_capture_store(args.store)
-    surface = _load_surface(Path(args.store).with_suffix(".npz"))
+    surface = load_surface(Path(args.store).with_suffix(".npz"))
     t = time.perf_counter()
     tracemalloc.start()
     f = relight.fit(store, surface, model=args.model, block=args.block, chunk=args.chunk, rounds=args.rounds,
@@ -115,29 +59,23 @@ def prepare(args) -> None:
     """Write the stores (args.out/n<N>.zarr and the floor's, each with its surface beside it); print the scene."""
     from relight.io import write_capture_store
 
-    cap, surface = _scene(args.res)
+    cap, surface = texel_sphere_capture(args.res)
     for n in [args.chunk, *args.texels]:
-        tiled = _tiled(cap, surface, n)
-        store = write_capture_store(Path(args.out) / f"n{n}.zarr", tiled[0], chunks=(1, 8, min(n, STORE_CHUNK), 3))
-        _save_surface(store.with_suffix(".npz"), tiled[1])
+        rep = tiled(cap, surface, n)
+        store = write_capture_store(Path(args.out) / f"n{n}.zarr", rep[0], chunks=(1, 8, min(n, STORE_CHUNK), 3))
+        save_surface(store.with_suffix(".npz"), rep[1])
     V, L, P0, _ = cap.shape
     print(json.dumps(dict(views=V, lights=L, texels=P0)))
 
 
-def _run(cmd) -> dict:
-    run = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
-    if run.returncode:
-        raise SystemExit(f"child failed ({' '.join(cmd)}):\n{run.stderr[-3000:]}")
-    return json.loads(run.stdout.strip().splitlines()[-1])
-
-
-def _common(args) -> list[str]:
+def _child_args(args) -> list[str]:
     return ["--res", str(args.res), "--model", args.model, "--chunk", str(args.chunk), "--rounds", str(args.rounds),
             "--steps", str(args.steps)]
 
 
 def measure(args, store: Path, block: int) -> dict:
-    return _run([sys.executable, __file__, "--child", "--store", str(store), "--block", str(block), *_common(args)])
+    return run_json([sys.executable, __file__, "--child", "--store", str(store), "--block", str(block),
+                     *_child_args(args)])
 
 
 def main(argv=None) -> None:
@@ -164,8 +102,8 @@ def main(argv=None) -> None:
     # child's peak would otherwise start at this process's size.
     mib = 1 << 20
     with tempfile.TemporaryDirectory() as tmp:
-        scene = _run([sys.executable, __file__, "--prepare", "--out", tmp, "--texels", *map(str, args.texels),
-                      *_common(args)])
+        scene = run_json([sys.executable, __file__, "--prepare", "--out", tmp, "--texels", *map(str, args.texels),
+                      *_child_args(args)])
         print(f"# relight.fit peak RSS; model={args.model} chunk={args.chunk} rounds={args.rounds} "
               f"steps={args.steps}; {scene['views']} view(s), {scene['lights']} lights, {scene['texels']} distinct "
               f"texels repeated to N; read from a capture store")

@@ -35,6 +35,7 @@ jax.config.update("jax_enable_x64", "--float32" not in sys.argv)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import uv_sphere  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import brdf  # noqa: E402
@@ -43,9 +44,6 @@ import skin_bssrdf  # noqa: E402
 import stage  # noqa: E402
 from relight.fitting import _subsurface as sss  # noqa: E402
 from relight.fitting import _subsurface_texel as tx  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from tests.stage.geometry import uv_sphere  # noqa: E402
 
 RADIUS_MM = 5.0
 

@@ -42,13 +42,13 @@ import json
 import os
 import platform
 import resource
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import ROOT, cpu_model, run_self_json
+
 FIGURES = ROOT / "docs" / "figures"
 
 
@@ -152,14 +152,6 @@ def child_fit(args) -> None:
                       "compile_s": compile_s, "failed_fraction": float(np.mean(np.asarray(f.failed)))}))
 
 
-def _run(cmd) -> dict:
-    """One child process; its last stdout line is its JSON."""
-    r = subprocess.run([sys.executable, __file__, *cmd], capture_output=True, text=True, cwd=ROOT)
-    if r.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{r.stderr[-3000:]}")
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
 def _table(rows, base) -> str:
     head = ("| grid | seen texels | simulate peak (MiB) | x 128^2 | surface build | streaming | simulate wall (s) "
             "| fit peak (MiB) | x 128^2 | surface build | fit | texels fitted | fit texels/s | compile (s) "
@@ -210,13 +202,13 @@ def main() -> None:
             store = str(folder / f"head{res}.zarr")
             row = rows.setdefault(res, {"res": res})
             if "simulate" in args.stages:
-                row["simulate"] = _run(["--child", "simulate", "--res", str(res), "--store", store, "--block",
-                                        str(args.sim_block)])
+                row["simulate"] = run_self_json(__file__, ["--child", "simulate", "--res", str(res), "--store", store,
+                                                           "--block", str(args.sim_block)])
                 print(f"{res}^2 simulate: {json.dumps(row['simulate'])}", flush=True)
             if "fit" in args.stages:
                 k = args.fit_samples if res >= args.bound_from else 0
-                row["fit"] = _run(["--child", "fit", "--store", store, "--block", str(args.fit_block),
-                                   *(["--fit-samples", str(k)] if k else [])])
+                row["fit"] = run_self_json(__file__, ["--child", "fit", "--store", store, "--block",
+                                                      str(args.fit_block), *(["--fit-samples", str(k)] if k else [])])
                 row["fit_samples"] = k or None
                 print(f"{res}^2 fit: {json.dumps(row['fit'])}", flush=True)
             _save(out, rows, args)
@@ -232,7 +224,7 @@ def main() -> None:
 def _save(out: Path, rows: dict, args) -> None:
     """OUT.json: every row measured so far (written after each, so a long run keeps what it has)."""
     doc = {"command": "python scripts/bench_pipeline_memory.py " + " ".join(sys.argv[1:]),
-           "machine": "2-core AMD EPYC (shared with other jobs), " + platform.platform(),
+           "machine": f"{cpu_model()} (shared with other jobs), " + platform.platform(),
            "date": datetime.date.today().isoformat(), "sim_block": args.sim_block, "fit_block": args.fit_block,
            "cpu_count": os.cpu_count(), "rows": [rows[k] for k in sorted(rows)]}
     out.parent.mkdir(parents=True, exist_ok=True)

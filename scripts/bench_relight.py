@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from relight.render._olat import relight_olat, relight_olat_sweep
+from relight.render import relight_olat, relight_olat_sweep
 
 
 def _make_stack(key, lights: int, samples: int, channels: int, dtype) -> jax.Array:

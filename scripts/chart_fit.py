@@ -37,12 +37,10 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 import relight
 import stage
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 RUNGS = ("lambert", "blinn_phong", "ggx", "ggx_aniso")
 

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -53,9 +52,9 @@ import relight.patterns as rp
 import stage
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-from bench_fit import machine  # noqa: E402
-from train_patterns import CAMERA_EYE, SENSOR  # noqa: E402
+from _common import PATTERN_CAMERA_EYE as CAMERA_EYE  # noqa: E402
+from _common import PATTERN_SENSOR as SENSOR  # noqa: E402
+from _common import machine  # noqa: E402
 
 FIG = ROOT / "docs" / "figures"
 FRAME_S = 1.0 / 60.0

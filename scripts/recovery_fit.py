@@ -25,12 +25,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 import relight
 import stage
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
 
 
 def main(argv=None):

@@ -38,12 +38,10 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _common import FIG, capture_of, errors, front_camera, machine, make_surface, tilt
 
 import relight
 import stage
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import FIG, capture_of, errors, front_camera, machine, make_surface, tilt
 
 ALPHAS = (0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
 COS_O = (1.0, 0.5, 0.2, 0.05)

@@ -63,7 +63,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import os
 import sys
 import tempfile
 import time
@@ -72,6 +71,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine
 
 import brdf
 import relight
@@ -339,14 +339,6 @@ def sweep(mfps, cells, *, per: str = "region", mfp_range=(0.01, 20.0), sim_texel
                     f"flagged {r['flagged']:5.0%}"
                     f" -> {r['verdict']:6s} ({r['seconds']:.1f} s)")
     return out
-
-
-def machine() -> str:
-    try:
-        model = [ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")][0]
-    except (OSError, IndexError):
-        model = "unknown CPU"
-    return f"{model}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()})"
 
 
 # --------------------------------------------------------------------------- outputs

@@ -57,11 +57,10 @@ import numpy as np
 import brdf
 import relight
 import stage
-from brdf._nbrdf import directional_albedo_half, load_nbrdf, nbrdf_names
+from brdf import directional_albedo_half, load_nbrdf, nbrdf_names
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-from bench_fit import front_camera, sphere_surface  # noqa: E402
+from _common import front_camera, machine, sphere_surface  # noqa: E402
 
 FIG = ROOT / "docs" / "figures"
 RUNGS = ("lambert", "blinn_phong", "ggx", "ggx_aniso")
@@ -226,7 +225,7 @@ def write_outputs(rows, checks, out: Path, texels: int, cmd: str, wall: float, f
     (out / f"merl_table{suffix}.md").write_text(
         f"`.venv/bin/python {cmd}` ({len(rows)} materials, {texels} texels, Light Stage X, 1% noise, "
         f"{loss} loss; "
-        f"{wall / 60:.1f} min on {_machine()})\n\n"
+        f"{wall / 60:.1f} min on {machine()})\n\n"
         "Relative RMS against the noise-free NBRDF truth: *refl* over every valid (light, texel, channel) "
         "observation of the OLAT capture; *relit* of the sphere relit under the bundled Venice-sunset map "
         "(rig method vs the image-based relighting of the true OLAT capture). Sorted by the best rung's "
@@ -281,16 +280,6 @@ def _chart(rows, path: Path, fits=FITS):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def _machine() -> str:
-    try:
-        model = [ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")][0]
-    except (OSError, IndexError):
-        model = "unknown CPU"
-    import os
-
-    return f"{model}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()})"
 
 
 if __name__ == "__main__":

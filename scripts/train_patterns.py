@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -36,12 +35,9 @@ import relight.patterns as rp
 import stage
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-from bench_fit import machine  # noqa: E402
-
-# The per-frame sensor of training and of the chart (1/60 s frames): docs/patterns.md.
-SENSOR = dict(exposure=2000.0, read_noise=5.0, shot_noise=True)
-CAMERA_EYE = (0.0, 0.0, 1000.0)
+from _common import PATTERN_CAMERA_EYE as CAMERA_EYE  # noqa: E402
+from _common import PATTERN_SENSOR as SENSOR  # noqa: E402
+from _common import machine  # noqa: E402
 
 
 def main(argv=None) -> int:

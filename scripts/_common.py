@@ -1,0 +1,284 @@
+"""What several scripts share: the machine description, a JSON child-process runner, the argparse and chart
+boilerplate, and the synthetic scenes of the fit benchmarks (sampled sphere surfaces, a UV-sphere mesh, a
+simulated OLAT capture, the per-sample errors of a fit).
+
+Scripts run as ``python scripts/x.py`` from the repository root and import this module as ``_common``: Python
+puts the script's own folder first on ``sys.path``. Nothing here is library logic; it only composes the public
+API of brdf, stage and relight. Importing it loads no JAX and no numpy (each function imports what it uses): the
+memory benchmarks' parent processes import it and must stay small, as Linux keeps ru_maxrss across fork and exec.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported where used: a memory benchmark's parent process must not hold JAX (see run_json)
+    import relight
+    import stage
+
+ROOT = Path(__file__).resolve().parent.parent
+FIG = ROOT / "docs" / "figures"
+
+# The per-frame sensor of pattern training and of its chart (1/60 s frames): docs/patterns.md.
+PATTERN_SENSOR = dict(exposure=2000.0, read_noise=5.0, shot_noise=True)
+PATTERN_CAMERA_EYE = (0.0, 0.0, 1000.0)
+
+
+# --------------------------------------------------------------------------- machine, processes, arguments, charts
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), else what ``platform`` knows."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def machine() -> str:
+    """One line for a results table: CPU model, core count, JAX version and backend."""
+    import jax
+
+    return f"{cpu_model()}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()})"
+
+
+def maxrss_mib() -> float:
+    """This process's peak resident set size (MiB; Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run_json(cmd: list[str], env: dict | None = None) -> dict:
+    """Run a child process from the repository root; its last stdout line is its JSON result.
+
+    A failing child stops the script with the child's command and the tail of its stderr.
+    """
+    run = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False, env=env)
+    if run.returncode:
+        raise SystemExit(f"child failed ({' '.join(map(str, cmd))}):\n{run.stderr[-3000:]}")
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def run_self_json(script: str, args: list[str], env: dict | None = None) -> dict:
+    """``run_json`` of ``python <script> <args>`` with this interpreter (a script that re-runs itself)."""
+    return run_json([sys.executable, script, *args], env=env)
+
+
+def parser(doc: str | None, **kw) -> argparse.ArgumentParser:
+    """An ArgumentParser whose description is the first paragraph of the script's docstring."""
+    return argparse.ArgumentParser(description=(doc or "").split("\n\n")[0], **kw)
+
+
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend (scripts write files, never open windows)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, path: Path, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``path`` atomically (a temporary file, then a rename: never a half-written figure)."""
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    fig.savefig(tmp, dpi=dpi)
+    os.replace(tmp, path)
+    return path
+
+
+# --------------------------------------------------------------------------- scenes of the fit scripts
+
+
+def frames_from_normals(n):
+    """Tangent / bitangent [P, 3] orthogonal to unit normals n [P, 3] (world +x projected, else +y)."""
+    import numpy as np
+
+    n = np.asarray(n, np.float64)
+    g = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t = g - n * np.sum(n * g, 1, keepdims=True)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return t, np.cross(n, t)
+
+
+def make_surface(position, normal) -> stage.Surface:
+    """A ``stage.Surface`` of independent samples (positions mm, unit normals)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import stage
+
+    P = len(position)
+    t, b = frames_from_normals(normal)
+    f = lambda x: jnp.asarray(np.asarray(x), jnp.float32)  # noqa: E731
+    return stage.Surface(position=f(position), normal=f(normal), tangent=f(t), bitangent=f(b),
+                         uv=f(np.zeros((P, 2))), area=f(np.ones(P)), texel_index=jnp.arange(P),
+                         face=jnp.zeros(P, jnp.int32), resolution=(1, P))
+
+
+def sphere_surface(n: int, seed: int = 0, radius: float = 50.0, min_cos: float = 0.3):
+    """n samples on the camera-facing (+z) part of a sphere at the origin, cos(normal, z) >= min_cos."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(min_cos, 1.0, n)
+    ph = rng.uniform(0, 2 * np.pi, n)
+    r = np.sqrt(1 - z * z)
+    nrm = np.stack([r * np.cos(ph), r * np.sin(ph), z], 1)
+    return make_surface(radius * nrm, nrm)
+
+
+def tilt(surface: stage.Surface, deg, seed: int = 1) -> stage.Surface:
+    """The surface with each shading normal tilted by ``deg`` (scalar or [P]) in a random azimuth."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    P = surface.num_samples
+    phi = rng.uniform(0, 2 * np.pi, P)
+    th = np.deg2rad(np.broadcast_to(np.asarray(deg, np.float64), (P,)))
+    T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
+    n = (np.sin(th) * np.cos(phi))[:, None] * T + (np.sin(th) * np.sin(phi))[:, None] * B + np.cos(th)[:, None] * N
+    return make_surface(np.asarray(surface.position), n / np.linalg.norm(n, axis=1, keepdims=True))
+
+
+def front_camera(distance: float = 1000.0):
+    """A 256 x 256 camera on +z at ``distance`` (mm) looking at the origin, 10 degrees wide."""
+    import stage
+
+    return stage.look_at((0.0, 0.0, distance), fov_deg=10, width=256, height=256)
+
+
+def truth(P: int, seed: int = 0, alpha=(0.1, 0.6)):
+    """Random true parameters (rho_d [P, 3], F0 [P, 1], alpha [P, 1]); ``alpha`` a (lo, hi) range or values."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    rho = rng.uniform(0.1, 0.8, (P, 3))
+    f0 = rng.uniform(0.02, 0.08, (P, 1))
+    a = rng.uniform(alpha[0], alpha[1], (P, 1)) if isinstance(alpha, tuple) else np.asarray(alpha).reshape(P, 1)
+    return rho, f0, a
+
+
+def capture_of(surface, rig, cam, rho, f0, alpha, noise: float, seed: int = 2, shadow: float = 0.0):
+    """Simulated OLAT capture (no occluders: every light in front of a sample is visible),
+    radiance x (1 + noise N(0,1)); ``shadow``: that fraction of valid observations zeroed
+    but left in the mask (unmasked cast shadows)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import brdf
+    import stage
+
+    P, L = surface.num_samples, rig.num_lights
+    mat = brdf.lambert_ggx(jnp.asarray(rho, jnp.float32), jnp.asarray(f0, jnp.float32), jnp.asarray(alpha, jnp.float32))
+    cap = stage.simulate(surface, rig, [cam], mat, np.ones((P, L), bool), np.ones((1, P), bool))
+    rng = np.random.default_rng(seed)
+    rad = np.asarray(cap.radiance, np.float32)
+    if noise > 0:
+        rad = rad * (1 + noise * rng.standard_normal(rad.shape)).astype(np.float32)
+    if shadow > 0:
+        hit = np.asarray(cap.mask) & (rng.uniform(size=cap.mask.shape) < shadow)
+        rad = np.where(hit[..., None], 0.0, rad).astype(np.float32)
+    return stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
+
+
+def errors(f: relight.Fit, rho, alpha, normal):
+    """Per-sample errors: relative albedo (mean over RGB), relative roughness, normal angle (deg)."""
+    import numpy as np
+
+    e_rho = np.mean(np.abs(np.asarray(f.rho_d) - rho) / rho, axis=1)
+    e_alpha = np.abs(np.asarray(f.alpha)[:, 0] - alpha[:, 0]) / alpha[:, 0]
+    c = np.sum(np.asarray(f.normal, np.float64) * np.asarray(normal, np.float64), 1)
+    e_n = np.rad2deg(np.arccos(np.clip(c, -1, 1)))
+    return e_rho, e_alpha, e_n
+
+
+def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0)) -> stage.Mesh:
+    """A latitude-longitude sphere mesh with an equirectangular UV map (a seam at u = 0)."""
+    import numpy as np
+
+    import stage
+
+    th = np.linspace(0, np.pi, n_lat + 1)
+    ph = np.linspace(0, 2 * np.pi, n_lon + 1)
+    T, Pp = np.meshgrid(th, ph, indexing="ij")
+    n = np.stack([np.sin(T) * np.cos(Pp), np.cos(T), np.sin(T) * np.sin(Pp)], -1).reshape(-1, 3)
+    verts = radius * n + np.asarray(center)
+    uv = np.stack([Pp.ravel() / (2 * np.pi), 1 - T.ravel() / np.pi], 1)
+    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
+    # Drop the zero-area triangles at the poles.
+    v = verts[faces]
+    keep = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 1e-9
+    return stage.Mesh(verts, faces[keep], n, uv, "sphere")
+
+
+# --------------------------------------------------------------------------- texel captures of the memory benchmarks
+
+
+def texel_sphere_capture(res: int):
+    """(capture, surface) of a GGX sphere seen from +z under stage.geodesic_dome(2), at ``res`` texels."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import brdf
+    import stage
+
+    mesh = uv_sphere(radius=50.0, n_lat=32, n_lon=64)
+    surface = stage.texel_samples(mesh, res)
+    rig = stage.geodesic_dome(2)
+    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=256, height=256)
+    lv = stage.light_visibility(mesh, surface, rig)
+    cv = stage.camera_visibility(mesh, surface, [cam])
+    keep = np.nonzero(cv[0] & (np.asarray(surface.position)[:, 2] > 15.0))[0]
+    surface = surface.subset(keep)
+    n = surface.num_samples
+    rng = np.random.default_rng(0)
+    rho, f0, alpha = (jnp.asarray(rng.uniform(lo, hi, (n, k)), jnp.float32)
+                      for lo, hi, k in ((0.1, 0.8, 3), (0.02, 0.08, 1), (0.15, 0.6, 1)))
+    cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[keep], cv[:, keep])
+    return cap, surface
+
+
+def tiled(cap, surface, n: int):
+    """The capture and surface with their samples repeated (cyclically) to ``n``."""
+    import numpy as np
+
+    import stage
+
+    idx = np.resize(np.arange(surface.num_samples), n)
+    return (stage.Capture(cap.radiance[:, :, idx], cap.mask[:, :, idx], cap.rig, cap.cameras),
+            surface.subset(idx))
+
+
+_SURFACE = ("position", "normal", "tangent", "bitangent", "uv", "area", "texel_index", "face")
+
+
+def save_surface(path: Path, surface) -> None:
+    """Write a ``stage.Surface`` as one .npz (``load_surface`` reads it)."""
+    import numpy as np
+
+    np.savez(path, resolution=np.asarray(surface.resolution), **{k: np.asarray(getattr(surface, k)) for k in _SURFACE})
+
+
+def load_surface(path: Path) -> stage.Surface:
+    """Read a ``stage.Surface`` written by ``save_surface``."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import stage
+
+    z = np.load(path)
+    return stage.Surface(**{k: jnp.asarray(z[k]) for k in _SURFACE}, resolution=tuple(int(r) for r in z["resolution"]))
