@@ -23,7 +23,6 @@ Without it (or without mitsuba) only our numbers are printed.
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import sys
@@ -32,6 +31,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import parser
 
 import brdf
 
@@ -348,7 +348,7 @@ def sweep(args) -> int:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--pairs", type=int, default=1 << 22, help="direction pairs (default 4M = 2^22)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--alpha", type=float, default=0.3)

@@ -15,7 +15,6 @@ on the cache the first one filled, shows which programs a new capture size still
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -26,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import ROOT, cpu_model
+from _common import ROOT, cpu_model, parser
 
 _CHILD = """
 import json, sys, time
@@ -73,7 +72,7 @@ def _simulate_argv(res: int, out: Path) -> list[str]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--res", type=int, nargs=2, default=(24, 40), help="two texel resolutions (default 24 40)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "figures" / "compile_cache.md"))
     args = ap.parse_args()

@@ -42,7 +42,6 @@ compiled code) after each stage.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -50,7 +49,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, parser, sphere_surface, tilt, truth
 
 import relight
 import stage
@@ -145,7 +144,7 @@ def u_to_physical(u, surface, floor, idx):
 # --------------------------------------------------------------------------- the benchmark
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--texels", type=int, default=1024)
     ap.add_argument("--scipy-texels", type=int, default=256)
     ap.add_argument("--scipy-method", default="lm", choices=["lm", "trf"])

@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import ROOT, cpu_model, load_surface, run_json, save_surface, texel_sphere_capture, tiled
+from _common import ROOT, cpu_model, load_surface, parser, run_json, save_surface, texel_sphere_capture, tiled
 
 STORE_CHUNK = 512
 
@@ -74,7 +74,7 @@ def prepare(args) -> None:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = parser(__doc__)
     p.add_argument("--texels", type=int, default=4096)
     p.add_argument("--devices", type=int, nargs="+", default=[1, 2, 4])
     p.add_argument("--model", default="ggx")

@@ -29,7 +29,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from _common import load_surface, run_json, save_surface, texel_sphere_capture, tiled
+from _common import load_surface, parser, run_json, save_surface, texel_sphere_capture, tiled
 
 # Samples per store chunk: a divisor of every block measured, so a block read decodes only its own chunks.
 STORE_CHUNK = 512
@@ -79,7 +79,7 @@ def measure(args, store: Path, block: int) -> dict:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = parser(__doc__)
     p.add_argument("--texels", type=int, nargs="+", default=[2048, 8192, 32768])
     p.add_argument("--blocks", type=int, nargs="+", default=[1024, 4096])
     p.add_argument("--model", default="ggx")

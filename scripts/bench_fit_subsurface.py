@@ -22,7 +22,6 @@ the gathered irradiance the LM uses.
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -35,7 +34,7 @@ jax.config.update("jax_enable_x64", "--float32" not in sys.argv)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _common import uv_sphere  # noqa: E402
+from _common import parser, uv_sphere  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import brdf  # noqa: E402
@@ -122,7 +121,7 @@ def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=1.4)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--texel-res", type=int, default=32)
     ap.add_argument("--dome", type=int, default=1)
     ap.add_argument("--scipy-texels", type=int, default=40)

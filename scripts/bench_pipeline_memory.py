@@ -36,7 +36,6 @@ simulation / the fit. The total is the larger of the two.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -47,7 +46,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import ROOT, cpu_model, run_self_json
+from _common import ROOT, cpu_model, parser, run_self_json
 
 FIGURES = ROOT / "docs" / "figures"
 
@@ -170,7 +169,7 @@ def _table(rows, base) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 512, 1024])
     ap.add_argument("--sim-block", type=int, default=1 << 14, help="relight simulate --block (texels)")
     ap.add_argument("--fit-block", type=int, default=4096, help="relight.fit block (samples)")

@@ -20,7 +20,6 @@ the stack (4.2 GB for float32 at the default size) plus the output.
 
 from __future__ import annotations
 
-import argparse
 import gc
 import statistics
 import time
@@ -28,6 +27,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import parser
 
 from relight.render import relight_olat, relight_olat_sweep
 
@@ -98,7 +98,7 @@ def bench(lights: int, samples: int, channels: int, dtype, repeats: int, sweep: 
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--lights", type=int, default=346)
     p.add_argument("--samples", type=int, default=1_000_000)
     p.add_argument("--channels", type=int, default=3)

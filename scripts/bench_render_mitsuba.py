@@ -39,7 +39,6 @@ The texel maps and the mesh are loaded once for both (scene load).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import statistics
 import tempfile
@@ -47,7 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import cpu_model
+from _common import cpu_model, parser, save_figure
 
 import relight
 import stage
@@ -152,7 +151,7 @@ def ours_settings(quick: bool):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--envmaps", nargs="+", default=["grace", "royal_esplanade_1k"])
     ap.add_argument("--ref-spp", type=int, default=8192)
     ap.add_argument("--spp", type=int, nargs="+", default=[4, 16, 64, 256, 1024, 4096])
@@ -342,9 +341,7 @@ def write_outputs(args, results, info, first_call, n_interior):
     fig.suptitle("relight.render vs Mitsuba 3: error vs time (head, direct light, same machine, same run)")
     fig.tight_layout()
     png = args.out.with_suffix(".png")
-    tmp = png.with_name(png.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    tmp.replace(png)
+    save_figure(fig, png, dpi=110)
     print(f"wrote {png} and {md}")
 
 

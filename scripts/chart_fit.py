@@ -29,7 +29,6 @@ without fitting.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, parser, sphere_surface, tilt, truth
 
 import relight
 import stage
@@ -57,7 +56,7 @@ def configs(args):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--texels", type=int, default=512)
     ap.add_argument("--chunk", type=int, default=256)
     ap.add_argument("--grid", default="lean", choices=["lean", "full"])

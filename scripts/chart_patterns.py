@@ -38,7 +38,6 @@ diffuse normal (``stage.diffuse_normals``) from the 4 gradient frames.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -46,17 +45,14 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import FIG, ROOT, machine, parser
+from _common import PATTERN_CAMERA_EYE as CAMERA_EYE
+from _common import PATTERN_SENSOR as SENSOR
 
 import relight
 import relight.patterns as rp
 import stage
 
-ROOT = Path(__file__).resolve().parents[1]
-from _common import PATTERN_CAMERA_EYE as CAMERA_EYE  # noqa: E402
-from _common import PATTERN_SENSOR as SENSOR  # noqa: E402
-from _common import machine  # noqa: E402
-
-FIG = ROOT / "docs" / "figures"
 FRAME_S = 1.0 / 60.0
 # A roughness off by more than this is counted as "not identified" in the table.
 ALPHA_FAIL = 0.25
@@ -266,7 +262,7 @@ def plot(res, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--samples", type=int, default=1000)
     ap.add_argument("--patterns", default="4,8,16,32,64")
     ap.add_argument("--models", type=Path, default=ROOT / "build" / "patterns")

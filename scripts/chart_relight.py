@@ -22,13 +22,13 @@ shadow rays of its median-cut lights, "fast" its ambient-occlusion rays and
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import parser, save_figure
 
 import relight
 import stage
@@ -66,7 +66,7 @@ def rel_rmse(x, ref, mask):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--texels", type=int, default=32)
     ap.add_argument("--ref-samples", type=int, default=8192)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures" / "relight_methods")
@@ -195,9 +195,7 @@ def main():
     fig.suptitle(f"relight.render methods: error vs time (head, {P} samples; dashed: reference noise)")
     fig.tight_layout()
     png = args.out.with_suffix(".png")
-    tmp = png.with_name(png.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    tmp.replace(png)
+    save_figure(fig, png, dpi=110)
     print(f"wrote {png} and {md} in {time.perf_counter() - t_start:.0f} s")
 
 

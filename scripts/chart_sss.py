@@ -23,7 +23,6 @@ Usage: python scripts/chart_sss.py [--resolutions 64 128 256] [--out docs/figure
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -32,6 +31,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import parser, save_figure
 
 import skin_bssrdf as sb
 import stage
@@ -79,7 +79,7 @@ def rel_rms(a, b):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--resolutions", type=int, nargs="+", default=[64, 128, 256])
     ap.add_argument("--reference-resolution", type=int, default=512)
     ap.add_argument("--eval", type=int, default=1500, help="evaluation samples per resolution")
@@ -194,9 +194,7 @@ def _chart(rows, out):
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp.png")
-    fig.savefig(tmp, dpi=120)
-    os.replace(tmp, out)  # atomic: never a half-written figure
+    save_figure(fig, out, dpi=120)
     plt.close(fig)
 
 

@@ -28,7 +28,6 @@ Exits with status 1 if any model disagrees beyond its tolerance.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
@@ -37,6 +36,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import parser  # noqa: E402
 
 import brdf  # noqa: E402
 
@@ -176,7 +176,7 @@ def cross_check(n_pairs: int = 2000, seed: int = 0, variant: str = "scalar_rgb",
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--pairs", type=int, default=2000, help="direction pairs per model (default 2000)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--variant", default="scalar_rgb", help="Mitsuba variant (default scalar_rgb)")

@@ -12,12 +12,12 @@ the 16; the error is the relative RMS over in-mask, unsaturated observations.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+from _common import parser, save_figure
 
 
 def angular_error_deg(n, gt):
@@ -65,7 +65,7 @@ def rel_rms(pred, obs, valid):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("object_dir", type=Path)
     ap.add_argument("--model", default="blinn_phong", help="fit model rung or 'auto' (default: blinn_phong)")
     ap.add_argument("--solver", default="lm")
@@ -160,9 +160,7 @@ def _figure(path, d, err_base, err_fit, n_fit):
     for x in ax:
         x.set_axis_off()
     fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=90)
-    tmp.replace(path)
+    save_figure(fig, path, dpi=90)
 
 
 if __name__ == "__main__":

@@ -27,13 +27,13 @@ under `--out` and prints the table.
 
 from __future__ import annotations
 
-import argparse
 import json
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _common import parser
 
 ROOT = Path(__file__).resolve().parents[1]
 FACE = ROOT.parent / "shared" / "data" / "meshes" / "mediapipe_canonical_face.obj"
@@ -150,7 +150,7 @@ def figure(rows, maps, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser(__doc__)
     p.add_argument("--quick", action="store_true", help="smoke run: 32 px images, 24 x 24 texels, polarized rig")
     p.add_argument("--normals", action="store_true", help="also fit the shading normal and report its error")
     p.add_argument("--noise", default="none", help="none | EXPOSURE (relight simulate --noise; default: none)")

@@ -10,7 +10,6 @@ best of ``--repeat`` timings, so a loaded machine reads less noisy).
     python scripts/profile_fit_step.py [--repeat 5]
 """
 
-import argparse
 import time
 
 import jax
@@ -18,6 +17,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+from _common import parser
 
 from relight.fitting import _driver as _fit
 from relight.fitting import _model as _fit_model
@@ -43,7 +43,7 @@ def _best(fn, args, repeat):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     rng = np.random.default_rng(0)

@@ -19,20 +19,19 @@ Writes docs/figures/recovery_fit.md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, sphere_surface, tilt, truth
+from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, parser, sphere_surface, tilt, truth
 
 import relight
 import stage
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--texels", type=int, default=1024)
     ap.add_argument("--noise", type=float, default=0.01)
     ap.add_argument("--solver", default="lm", choices=relight.SOLVERS)

@@ -29,7 +29,6 @@ sees 1/d^2 vary by only +-10%), the capture RMS before and after, and the time.
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import jax
@@ -40,23 +39,10 @@ import jax.numpy as jnp  # noqa: E402
 import lineax as lx  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
+from _common import parser, uv_sphere  # noqa: E402
 
 import brdf  # noqa: E402
 import stage  # noqa: E402
-
-
-def _uv_sphere(radius: float, n_lat: int, n_lon: int) -> stage.Mesh:
-    """A latitude-longitude sphere (mm) with an equirectangular UV map, as a stage.Mesh."""
-    th, ph = np.meshgrid(np.linspace(0, np.pi, n_lat + 1), np.linspace(0, 2 * np.pi, n_lon + 1), indexing="ij")
-    n = np.stack([np.sin(th) * np.cos(ph), np.cos(th), np.sin(th) * np.sin(ph)], -1).reshape(-1, 3)
-    uv = np.stack([ph.ravel() / (2 * np.pi), 1 - th.ravel() / np.pi], 1)
-    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
-    v = radius * n
-    tri = v[faces]
-    keep = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 1e-9  # no pole slivers
-    return stage.Mesh(v, faces[keep], n, uv, "sphere")
 
 
 def _f64(tree):
@@ -65,7 +51,7 @@ def _f64(tree):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--lights", type=int, default=60, help="lights on a Fibonacci sphere at 1 m (default 60)")
     ap.add_argument("--texels", type=int, default=16, help="texel grid of the sphere (default 16)")
     ap.add_argument("--intensity-error", type=float, default=0.15,
@@ -79,7 +65,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(a.seed)
 
     # The known target: a white-ish Lambert + GGX sphere, radius 50 mm, at the rig centre.
-    mesh = _uv_sphere(50.0, 32, 64)
+    mesh = uv_sphere(50.0, 32, 64)
     surf = _f64(stage.texel_samples(mesh, a.texels))
     P = surf.num_samples
     mat = brdf.lambert_ggx(jnp.full((P, 3), 0.8), jnp.full((P, 1), 0.04), jnp.full((P, 1), 0.25))

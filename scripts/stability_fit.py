@@ -31,14 +31,13 @@ rig with 1% noise) and docs/figures/stability_fit.md (the table).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
-from _common import FIG, capture_of, errors, front_camera, machine, make_surface, tilt
+from _common import FIG, capture_of, errors, front_camera, machine, make_surface, parser, tilt
 
 import relight
 import stage
@@ -90,7 +89,7 @@ def assert_finite(f: relight.Fit, what: str):
 
 
 def main(argv=None):  # noqa: C901 (a linear script: parse, simulate, fit, tabulate, plot)
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--lights", default="16,100,346")
     ap.add_argument("--solvers", default=",".join(relight.SOLVERS))
     ap.add_argument("--reps", type=int, default=4, help="samples per (roughness, cos_o) cell")

@@ -60,7 +60,6 @@ the verdicts by condition and the table).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import inspect
 import sys
@@ -71,7 +70,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import machine
+from _common import machine, parser
 
 import brdf
 import relight
@@ -436,7 +435,7 @@ def table(records) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--per", choices=("region", "texel", "auto"), default="region")
     ap.add_argument("--quick", action="store_true", help="2 mfp x (baseline, coarse texels): a smoke run")
     ap.add_argument("--mfp-range", default="0.01,20", help="fit_subsurface's search bracket (mm)")

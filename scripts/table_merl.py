@@ -44,7 +44,6 @@ each name). ``--holdout-check`` fits nothing: it prints how often the held-out l
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -60,7 +59,7 @@ import stage
 from brdf import directional_albedo_half, load_nbrdf, nbrdf_names
 
 ROOT = Path(__file__).resolve().parents[1]
-from _common import front_camera, machine, sphere_surface  # noqa: E402
+from _common import front_camera, machine, parser, sphere_surface  # noqa: E402
 
 FIG = ROOT / "docs" / "figures"
 RUNGS = ("lambert", "blinn_phong", "ggx", "ggx_aniso")
@@ -105,7 +104,7 @@ _albedo = eqx.filter_jit(directional_albedo_half)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--texels", type=int, default=512)
     ap.add_argument("--materials", default="", help="comma-separated names (default: every network in the folder)")
     ap.add_argument("--out", type=Path, default=FIG)

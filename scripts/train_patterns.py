@@ -22,7 +22,6 @@ file the rig plays), ``.eqx`` (decoders and patterns, equinox leaves), ``.json``
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import time
@@ -30,18 +29,16 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _common import PATTERN_CAMERA_EYE as CAMERA_EYE
+from _common import PATTERN_SENSOR as SENSOR
+from _common import ROOT, machine, parser
 
 import relight.patterns as rp
 import stage
 
-ROOT = Path(__file__).resolve().parents[1]
-from _common import PATTERN_CAMERA_EYE as CAMERA_EYE  # noqa: E402
-from _common import PATTERN_SENSOR as SENSOR  # noqa: E402
-from _common import machine  # noqa: E402
-
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--patterns", default="4,8,16,32,64", help="pattern counts K, comma separated")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--batch", type=int, default=256)
