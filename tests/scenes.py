@@ -1,6 +1,7 @@
 """Shared test scenes, built in code: meshes (a plane, a UV sphere, merged meshes), a planar texel grid for the
 diffusion operators, the UV sphere written as an OBJ file, the camera-facing part of a sphere seen by one camera
-under a dome, and the noisy GGX sphere capture that the fit tests share.
+under a dome, the noisy GGX sphere capture that the fit tests share, and what ../shared/data holds (the Light
+Stage X directions, cached env maps).
 
 The expensive builders are cached (``functools.lru_cache``: built once per process, so once per pytest-xdist
 worker); tests/conftest.py offers them as session-scoped fixtures. Everything they return is immutable (numpy
@@ -8,6 +9,7 @@ arrays are returned read-only, JAX arrays and equinox modules are immutable), so
 """
 
 import functools
+import json
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -15,6 +17,10 @@ import numpy as np
 
 import brdf
 import stage
+from relight.envmap import load_envmap
+
+ENVMAPS = ["grace", "uffizi", "pisa", "ennis", "venice_sunset_1k", "royal_esplanade_1k"]
+SMALL_ENVMAPS = ENVMAPS[:4]
 
 # --------------------------------------------------------------------------- meshes
 
@@ -143,6 +149,36 @@ def noisy_ggx_sphere(res=24, seed=0, noise=0.02):
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
     scale = jnp.asarray(1 + noise * rng.standard_normal(cap.radiance.shape), jnp.float32)
     return stage.Capture(cap.radiance * scale, cap.mask, cap.rig, cap.cameras), surface
+
+
+# --------------------------------------------------------------------------- directions and ../shared/data
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors (golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    y = 1 - 2 * i / n
+    r = np.sqrt(1 - y * y)
+    phi = np.pi * (1 + 5**0.5) * i
+    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=-1)
+
+
+def light_stage_x(shared_data: Path) -> np.ndarray:
+    """Unit directions [346, 3] from the stage centre to each Light Stage X light."""
+    return _lsx(str(shared_data))
+
+
+@functools.lru_cache(maxsize=2)
+def _lsx(folder: str) -> np.ndarray:
+    with open(Path(folder) / "lightstage" / "light_stage_x.json") as fh:
+        pos = np.asarray(json.load(fh)["positions_cm"], np.float64)
+    return pos / np.linalg.norm(pos, axis=1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=8)
+def envmap(shared_data: Path, name: str):
+    """The env map ``name`` of ../shared/data/envmaps (loaded once per process)."""
+    return load_envmap(Path(shared_data) / "envmaps" / f"{name}.hdr")
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ from relight.io import (
     write_capture_store,
 )
 from relight.io._store import MARKER
-from tests.stage.geometry import uv_sphere
+from tests.scenes import uv_sphere
 
 V, L, H, W, C = 2, 12, 20, 50, 3
 P = H * W

@@ -20,7 +20,7 @@ from relight.envmap import (
 )
 from relight.io import ImageFormatError, write_exr
 from tests.helpers import REFUSED, assert_close, assert_finite
-from tests.relight._rig import ENVMAPS, envmap, fibonacci_sphere
+from tests.scenes import ENVMAPS, envmap, fibonacci_sphere
 
 
 def test_frame_convention():

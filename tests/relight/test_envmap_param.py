@@ -32,7 +32,7 @@ from relight.envmap import (
 )
 from relight.image import resize_image
 from tests.helpers import assert_close
-from tests.relight._rig import envmap
+from tests.scenes import envmap
 
 
 def smooth(d):

@@ -21,7 +21,7 @@ from relight.envmap import (
     sh_reconstruct,
 )
 from tests.helpers import assert_close, assert_finite
-from tests.relight._rig import ENVMAPS, envmap, fibonacci_sphere
+from tests.scenes import ENVMAPS, envmap, fibonacci_sphere
 
 
 def test_band_2_matches_ramamoorthi_hanrahan_constants():

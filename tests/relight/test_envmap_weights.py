@@ -19,7 +19,7 @@ from relight.envmap import (
     rotation_sweep_weights,
 )
 from tests.helpers import REFUSED, assert_close
-from tests.relight._rig import ENVMAPS, SMALL_ENVMAPS, envmap, fibonacci_sphere, light_stage_x
+from tests.scenes import ENVMAPS, SMALL_ENVMAPS, envmap, fibonacci_sphere, light_stage_x
 
 
 @pytest.mark.parametrize("name", ENVMAPS)

@@ -10,7 +10,7 @@ import relight
 import stage
 from relight import fit
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 
 @pytest.fixture(scope="module")

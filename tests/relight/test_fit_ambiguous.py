@@ -10,7 +10,7 @@ import brdf
 import relight
 import stage
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 
 def test_albedo_traded_for_a_lobe_is_flagged_ambiguous():

@@ -12,7 +12,7 @@ import skin_bssrdf
 import stage
 from relight.fitting import subsurface_radiance
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 RADIUS = 8.0
 TRUE_MFP = np.array([1.2, 0.6, 0.3])

@@ -15,7 +15,7 @@ from relight.fitting import _patterns as _fit_patterns
 from relight.fitting import fit, fit_patterns
 from relight.fitting._model import GGX, GGX_ANISO, LAMBERT, Layout
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 # Tight solver tolerances: noise-free recovery is then limited by float32 radiance, not the stopping rule.
 TIGHT = dict(rtol=1e-9, atol=1e-10)

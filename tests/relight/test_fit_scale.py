@@ -18,7 +18,7 @@ import brdf
 import relight
 import stage
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import relight
 import skin_bssrdf
 import stage
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 
 @pytest.fixture(scope="module")

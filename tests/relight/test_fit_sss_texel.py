@@ -23,7 +23,7 @@ import stage
 from relight.fitting import _subsurface_texel as tx
 from relight.fitting._subsurface import MIN_SPREAD, spread_fraction
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 RADIUS_MM = 5.0
 SUBSURFACE = relight.MODELS.index("subsurface")

@@ -499,7 +499,7 @@ def test_photo_capture_reader(tmp_path, small_limits, photo_folder, data):
 @pytest.fixture(scope="module")
 def map_set(tmp_path_factory):
     import relight
-    from tests.stage.geometry import plane
+    from tests.scenes import plane
 
     surface = stage.texel_samples(plane(size=100.0, n=2), 4)
     maps = relight.material_maps(surface, rho_d=np.full((surface.num_samples, 3), 0.5),

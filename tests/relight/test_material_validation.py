@@ -15,7 +15,7 @@ import stage
 from relight.io import texture_set
 from relight.materials import ALPHA_MAX, MODELS
 
-from ..stage.geometry import uv_sphere
+from ..scenes import uv_sphere
 
 
 @pytest.fixture(scope="module")

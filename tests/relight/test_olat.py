@@ -16,7 +16,7 @@ from relight.envmap import (
 )
 from relight.render._olat import relight_olat, relight_olat_sweep
 from tests.helpers import REFUSED, assert_close
-from tests.relight._rig import envmap, fibonacci_sphere, light_stage_x
+from tests.scenes import envmap, fibonacci_sphere, light_stage_x
 
 
 @pytest.fixture

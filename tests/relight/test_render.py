@@ -15,9 +15,9 @@ import stage
 from relight import render
 from relight.envmap import EnvMap, light_weights
 from tests.helpers import REFUSED
-from tests.stage.geometry import uv_sphere
+from tests.scenes import uv_sphere
 
-from ._rig import envmap
+from ..scenes import envmap
 
 
 def _psnr(x, ref):

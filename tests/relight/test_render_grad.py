@@ -20,7 +20,7 @@ import relight
 import stage
 from relight import render
 from relight.envmap import EnvMap
-from tests.stage.geometry import uv_sphere
+from tests.scenes import uv_sphere
 
 # Central differences in float64 with a step of 1e-5 of each map's scale:
 # truncation ~1e-10 and rounding ~1e-11 relative; 1e-6 catches any wrong term.

@@ -18,7 +18,7 @@ from relight.envmap import EnvMap, latlong_solid_angles, rotation_matrix
 from relight.render._lights import median_cut, region_strength
 from tests.helpers import REFUSED
 
-from ._rig import envmap
+from ..scenes import envmap
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +118,7 @@ def test_lights_gradient_in_the_environment_matches_finite_differences():
     direction of the environment equals a central difference to 1e-8 relative.
     With 32 regions (cut from the values, held fixed) the gradient is finite
     and positive."""
-    from tests.stage.geometry import uv_sphere
+    from tests.scenes import uv_sphere
 
     mesh = uv_sphere(50.0, 8, 16)
     surf = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64) if hasattr(x, "dtype") and

@@ -12,7 +12,7 @@ import stage
 from relight import render
 from relight.envmap import EnvMap
 from tests.helpers import REFUSED
-from tests.stage.geometry import uv_sphere
+from tests.scenes import uv_sphere
 
 
 @pytest.fixture(scope="module")

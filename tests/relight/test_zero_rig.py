@@ -103,7 +103,7 @@ def test_traced_zero_lights_give_zero_weights_not_inf():
 
 def _sphere_capture(intensity):
     """A 12-light rig around a unit-albedo sphere, rendered in texel space without shadows."""
-    from tests.stage.geometry import uv_sphere
+    from tests.scenes import uv_sphere
 
     mesh = uv_sphere(radius=50.0, n_lat=12, n_lon=24)
     surf = stage.texel_samples(mesh, 32)
@@ -135,7 +135,7 @@ def test_image_based_view_of_a_zero_rig():
 def test_model_based_rig_method_with_zero_lights():
     """render_samples(method="rig") on a rig with absent lights is finite and
     equals the render on the rig without them; an all-zero rig is refused."""
-    from tests.stage.geometry import uv_sphere
+    from tests.scenes import uv_sphere
 
     mesh = uv_sphere(radius=50.0, n_lat=12, n_lon=24)
     surf = stage.texel_samples(mesh, 16)

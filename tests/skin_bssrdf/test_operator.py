@@ -8,7 +8,7 @@ import pytest
 
 import skin_bssrdf as sb
 from tests.helpers import REFUSED, assert_close, assert_finite
-from tests.skin_bssrdf.geometry import plane
+from tests.scenes import texel_grid
 
 # A short-range material (r99 ~ 2.4 mm) keeps the neighbour lists small.
 PROFILE = sb.Dipole(jnp.array([0.5, 0.9]), jnp.array([2.0, 2.5]), 1.3)
@@ -17,7 +17,7 @@ RADIUS = float(np.max(np.asarray(sb.energy_radius(PROFILE, 0.99))))
 
 @pytest.fixture(scope="module")
 def grid():
-    pos, area, _ = plane(36, 0.2)
+    pos, area, _ = texel_grid(36, 0.2)
     return pos, area, sb.DiffusionOperator.build(pos, area, RADIUS)
 
 
@@ -76,7 +76,7 @@ def test_converges_as_spacing_shrinks(profile, bound):
     errs = []
     for h in (0.4, 0.2, 0.1):
         n = 2 * int(np.ceil(radius / h)) + 3
-        pos, area, _ = plane(n, h)
+        pos, area, _ = texel_grid(n, h)
         c = (n // 2) * n + n // 2
         ops = sb.DiffusionOperator.build(pos, area, radius, receivers=np.array([c]))
         M = np.asarray(ops.apply(profile, jnp.ones((pos.shape[0], 2))))
@@ -87,7 +87,7 @@ def test_converges_as_spacing_shrinks(profile, bound):
 
 
 def test_gradient_wrt_profile_matches_finite_differences():
-    pos, area, _ = plane(12, 0.3)
+    pos, area, _ = texel_grid(12, 0.3)
     ops = sb.DiffusionOperator.build(pos, area, 1.5, chunk=37)
     E = jnp.asarray(np.random.default_rng(0).uniform(0.5, 2.0, (pos.shape[0], 2)))
 

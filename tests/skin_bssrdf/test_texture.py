@@ -7,7 +7,7 @@ import pytest
 
 import skin_bssrdf as sb
 from tests.helpers import REFUSED, assert_close
-from tests.skin_bssrdf.geometry import plane
+from tests.scenes import texel_grid
 
 torch = pytest.importorskip("torch")
 kornia = pytest.importorskip("kornia")
@@ -33,7 +33,7 @@ def test_stretch_corrected_blur_matches_kornia_in_the_interior():
     # full mask, uniform stretch s mm/texel: a Gaussian of variance v mm^2 is kornia's blur with
     # sigma = sqrt(v)/s texels wherever the kernel does not reach the border
     H, W, s = 48, 52, 0.25
-    pos, area, tex = plane(H, s, m=W)
+    pos, area, tex = texel_grid(H, s, m=W)
     E = np.random.default_rng(4).uniform(0, 1, (H * W, 2))
     tsd = sb.TextureSpaceDiffusion.build(tex, (H, W), pos)
     assert_close(tsd.stretch, jnp.full((H, W, 2), s), rtol=1e-12)
@@ -52,7 +52,7 @@ def test_stretch_corrected_blur_matches_kornia_in_the_interior():
 
 def test_energy_conserved_with_holes_and_flat_index():
     H, W, h = 30, 30, 0.3
-    pos, area, tex = plane(H, h, m=W)
+    pos, area, tex = texel_grid(H, h, m=W)
     keep = (tex[:, 0] - 15) ** 2 + (tex[:, 1] - 15) ** 2 < 12**2  # a disc-shaped chart
     prof = sb.SumOfGaussians.skin_deon2007(jnp.array([0.6, 0.4, 0.3]))
     flat = tex[keep, 0] * W + tex[keep, 1]
@@ -66,7 +66,7 @@ def test_energy_conserved_with_holes_and_flat_index():
 def test_agrees_with_sparse_operator_on_a_plane():
     # a flat, uniformly parametrised chart: both compute the same convolution
     H, W, h = 80, 80, 0.2
-    pos, area, tex = plane(H, h, m=W)
+    pos, area, tex = texel_grid(H, h, m=W)
     prof = sb.SumOfGaussians.skin_deon2007(jnp.array([0.6, 0.4, 0.3]))
     E = jnp.asarray(np.where(pos[:, :1] > 7.9, 1.0, 0.05) * np.ones((1, 3)))  # a shadow edge
     tsd = sb.TextureSpaceDiffusion.build(tex, (H, W), pos)
@@ -86,7 +86,7 @@ def test_agrees_with_sparse_operator_on_a_plane():
 
 
 def test_bad_input():
-    pos, area, tex = plane(4, 1.0)
+    pos, area, tex = texel_grid(4, 1.0)
     with pytest.raises(ValueError, match="share a texel"):
         sb.TextureSpaceDiffusion.build(np.zeros((16, 2), int), (4, 4), pos)
     with pytest.raises(ValueError, match="out of the"):

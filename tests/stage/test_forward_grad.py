@@ -19,7 +19,7 @@ import pytest
 import brdf
 import stage
 
-from .geometry import plane, uv_sphere
+from ..scenes import plane, uv_sphere
 
 # Central differences in float64 with a step of 1e-5 of each group's scale:
 # truncation h^2 f''' / 6 ~ 1e-10 and rounding eps / h ~ 1e-11 relative, so

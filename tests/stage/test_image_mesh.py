@@ -3,7 +3,7 @@ import pytest
 
 import stage
 
-from .geometry import merge, plane, uv_sphere
+from ..scenes import merge, plane, uv_sphere
 
 
 def test_check_mesh_reports_degenerate_faces(tmp_path):

@@ -11,7 +11,7 @@ import numpy as np
 import brdf
 import stage
 
-from .geometry import plane, uv_sphere
+from ..scenes import plane, uv_sphere
 
 # Radiance is computed and stored in float32: 1e-5 relative covers its rounding.
 RTOL_F32 = 1e-5

@@ -12,7 +12,7 @@ import stage
 import stage._patterns as patterns_module
 
 from ..helpers import REFUSED
-from .geometry import plane, uv_sphere
+from ..scenes import plane, uv_sphere
 
 
 def _material(P, rho=0.6, f0=0.04, alpha=0.25):

@@ -9,7 +9,7 @@ import brdf
 import skin_bssrdf
 import stage
 
-from .geometry import plane, uv_sphere
+from ..scenes import plane, uv_sphere
 
 
 def _material(P, rho=1.0, alpha=0.2):

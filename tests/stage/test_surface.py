@@ -3,7 +3,7 @@ import pytest
 
 import stage
 
-from .geometry import plane, uv_sphere
+from ..scenes import plane, uv_sphere
 
 
 def test_texel_areas_sum_to_mesh_area():

@@ -11,7 +11,7 @@ import brdf
 import stage
 from stage._visibility import terminator_point
 
-from .geometry import merge, uv_sphere
+from ..scenes import merge, uv_sphere
 
 # Directional lights, unit, spread over the sphere (none along an axis, so no
 # light grazes a whole ring of the lat-long sphere's facets at once).

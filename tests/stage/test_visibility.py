@@ -3,7 +3,7 @@ import pytest
 
 import stage
 
-from .geometry import merge, plane, uv_sphere
+from ..scenes import merge, plane, uv_sphere
 
 
 def test_sphere_casts_its_shadow_where_geometry_says():
