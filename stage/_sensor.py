@@ -149,3 +149,88 @@ def sense(capture: Capture, sensor: Sensor, key) -> Capture:
     dn, sat = sensor.expose(key, capture.radiance)
     rad = sensor.to_radiance(dn).astype(capture.radiance.dtype)
     return Capture(radiance=rad, mask=capture.mask & ~sat, rig=capture.rig, cameras=capture.cameras, sensor=sensor)
+
+
+def observation_key(seed, view, light, sample):
+    """The PRNG key of one observation: the project's one sensor-noise seeding rule.
+
+    key = fold_in(fold_in(fold_in(PRNGKey(seed), view), light), sample), so an
+    observation's noise is a function of (seed, view, light, sample) only: it does
+    not depend on how a capture is cut into chunks or blocks, nor on the form it
+    is written in.
+
+    Args:
+        seed: an integer seed, or a ``jax.random`` key (``PRNGKey(seed)`` already made).
+        view: the camera's index in the capture.
+        light: the light's index in the rig.
+        sample: the sample's index on its grid (``Surface.texel_index``: the texel of a
+            texel grid, the pixel ``row * width + column`` of an image).
+
+    Returns:
+        A ``jax.random`` key.
+    """
+    return jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(_key(seed), view), light), sample)
+
+
+def _key(seed):
+    """``PRNGKey(seed)`` of an integer seed; a key (typed, or raw uint32 [2]) as it is."""
+    if hasattr(seed, "dtype") and jnp.issubdtype(seed.dtype, jax.dtypes.prng_key):
+        return seed
+    return jax.random.PRNGKey(seed) if jnp.ndim(seed) == 0 else jnp.asarray(seed)
+
+
+@eqx.filter_jit
+def _sense_keyed(sensor: Sensor, key, view, lights, samples, radiance, mask):
+    kv = jax.random.fold_in(key, view)
+
+    def one(light, sample, rad):
+        return sensor.expose(jax.random.fold_in(jax.random.fold_in(kv, light), sample), rad)
+
+    dn, sat = jax.vmap(lambda lt, r: jax.vmap(lambda t, x: one(lt, t, x))(samples, r))(lights, radiance)
+    return sensor.to_radiance(dn).astype(radiance.dtype), mask & ~sat
+
+
+def sense_keyed(sensor: Sensor | None, seed, radiance: Float[ArrayLike, "light sample channel"], mask, *, view: int,
+                lights, samples) -> tuple[np.ndarray, np.ndarray]:
+    """One chunk of a capture as ``sensor`` records it, each observation with its own key.
+
+    The noise of observation (view, light, sample) is drawn from
+    :func:`observation_key` ``(seed, view, light, sample)`` (the one seeding rule),
+    so the same observation gets the same noise whatever chunk it is in.
+
+    Args:
+        sensor: the ``Sensor``; None: no sensor (the radiance as it is, clipped at 0).
+        seed: an integer seed (or a ``jax.random`` key).
+        radiance: float [Lc, Pc, C], the chunk's radiance (capture units).
+        mask: bool [Lc, Pc], the chunk's valid observations.
+        view: the chunk's view index.
+        lights: the rig index of the chunk's first light (an int; the rows are
+            ``lights, lights + 1, ...``), or int [Lc], one per row.
+        samples: int [Pc], each column's index on the sample grid (``Surface.texel_index``).
+
+    Returns:
+        (radiance float32 [Lc, Pc, C] >= 0, the linearised measurement
+        ``sensor.to_radiance(DN)``; mask bool [Lc, Pc] without the saturated
+        observations), as NumPy arrays.
+
+    References:
+        Foi et al. 2008, "Practical Poissonian-Gaussian noise modeling and fitting for
+        single-image raw-data", eq. 1-3 (the noise model of ``Sensor.expose``).
+    """
+    radiance = jnp.asarray(radiance, jnp.float32)
+    if radiance.ndim != 3:
+        raise ValueError(f"sense_keyed: radiance must be [Lc, Pc, C], got shape {radiance.shape}")
+    mask = np.asarray(mask, bool)
+    if mask.shape != radiance.shape[:2]:
+        raise ValueError(f"sense_keyed: mask has shape {mask.shape}, radiance {radiance.shape}")
+    if sensor is not None:
+        lc = radiance.shape[0]
+        lights = np.asarray(lights, np.int64)
+        lights = lights + np.arange(lc) if lights.ndim == 0 else lights
+        samples = np.asarray(samples, np.int64)
+        if lights.shape != (lc,) or samples.shape != radiance.shape[1:2]:
+            raise ValueError(f"sense_keyed: lights {lights.shape} / samples {samples.shape} do not match radiance "
+                             f"{radiance.shape}")
+        radiance, mask = _sense_keyed(sensor, _key(seed), jnp.asarray(view, jnp.int32), jnp.asarray(lights, jnp.int32),
+                                      jnp.asarray(samples, jnp.int32), radiance, jnp.asarray(mask))
+    return np.maximum(np.asarray(radiance, np.float32), 0.0), np.asarray(mask, bool)

@@ -295,14 +295,40 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
 
 
 def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera, *,
-                      occluder: Occluder | None = None, candidates=None) -> np.ndarray:
+                      occluder: Occluder | None = None, candidates=None, chunk: int | None = None) -> np.ndarray:
     """bool [V, P]: sample p faces camera v, projects inside its image, and is not occluded.
 
-    ``occluder``: an ``Occluder(mesh, surface)`` built once and reused across
-    calls (building one costs a BVH); ``candidates``: bool [P], only these
-    samples are tested (ray cast), the others are False."""
-    occ = Occluder(mesh, surface) if occluder is None else occluder
+    Args:
+        mesh: the occluding mesh.
+        surface: the P samples.
+        cameras: one ``Camera`` or a sequence of V.
+        occluder: an ``Occluder(mesh, surface)`` built once and reused across
+            calls (building one costs a BVH).
+        candidates: bool [P]: only these samples are tested (ray cast), the others are False.
+        chunk: test this many samples at a time, each chunk with its own occluder
+            (not with ``occluder``): the answer is the same (each sample is its own
+            ray), while the pass's temporaries (the occluder's float64 copies, the
+            projections and rays: a few hundred bytes a sample) stay one chunk's.
+            None: all at once.
+
+    Returns:
+        bool [V, P].
+    """
     P = surface.num_samples
+    if chunk is not None and occluder is None and P > int(chunk):
+        from ._host import host_fields, host_subset
+
+        if int(chunk) < 1:
+            raise ValueError(f"camera_visibility: chunk must be >= 1, got {chunk}")
+        cams = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
+        fields = host_fields(surface)
+        out = np.zeros((len(cams), P), bool)
+        for s in range(0, P, int(chunk)):
+            part = slice(s, min(s + int(chunk), P))
+            out[:, part] = camera_visibility(mesh, host_subset(fields, surface.resolution, part), cams,
+                                             candidates=None if candidates is None else np.asarray(candidates)[part])
+        return out
+    occ = Occluder(mesh, surface) if occluder is None else occluder
     if occ.origin.shape != (P, 3):
         raise ValueError(f"camera_visibility: occluder was built for {occ.origin.shape[0]} samples, surface has {P}")
     if candidates is not None:

@@ -11,6 +11,8 @@ from ._capture import CaptureReader as CaptureReader
 from ._capture import open_capture as open_capture
 from ._capture import read_capture as read_capture
 from ._capture import write_capture as write_capture
+from ._capture_writer import CaptureFolderWriter as CaptureFolderWriter
+from ._capture_writer import store_blocks as store_blocks
 from ._diligent import DiligentData as DiligentData
 from ._diligent import diligent_capture as diligent_capture
 from ._diligent import is_diligent_folder as is_diligent_folder
@@ -88,6 +90,8 @@ from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
 
 __all__ = [
+    "CaptureFolderWriter",
+    "store_blocks",
     "CaptureStore",
     "CaptureStoreError",
     "CaptureStoreWriter",

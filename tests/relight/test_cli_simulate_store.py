@@ -182,8 +182,16 @@ def test_store_blocks_are_whole_store_chunks(n, block, want):
     """The block is rounded down to a multiple of the store's sample chunk (so
     every block writes whole chunks), the chunk is relight.io's default (16384
     samples of 8 RGB float32 lights) or the largest power of two in the block."""
-    from relight.cli.simulate import store_blocks
+    from relight.io import store_blocks
 
     got = store_blocks(n, block, 3, np.float32)
     assert got == want
     assert got[0] % got[1] == 0 and got[0] <= block
+
+
+def test_the_help_texts_block_is_stages():
+    """``relight simulate``'s DEFAULT_BLOCK (spelled there so that --help needs no JAX) is stage's."""
+    import stage
+    from relight.cli import simulate
+
+    assert simulate.DEFAULT_BLOCK == stage.DEFAULT_BLOCK
