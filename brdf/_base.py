@@ -6,8 +6,8 @@ Conventions (DESIGN.md): directions are unit vectors in the local shading frame
 cosine factor, 0 where either direction is at or below the horizon. Models with
 1/cos factors or a half vector evaluate a direction whose cosine is below
 ``brdf.grazing_floor(dtype)`` (8 ulps of 1) at the floor (``brdf.lift_grazing``),
-so values and gradients stay finite at grazing; tests/brdf/test_nan_sweep.py
-holds every public model to that.
+so values and gradients stay finite at grazing (every public model is held to
+that).
 """
 
 from __future__ import annotations

@@ -38,13 +38,21 @@ def beckmann_d_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """Beckmann density of microfacet normals D(wm), in 1/sr, for a unit normal
-    wm = (x, y, z) given as separate components (any broadcastable shapes):
+    """Beckmann density of microfacet normals D(wm), for wm = (x, y, z) given as separate components.
 
-        D(wm) = exp(-((x/ax)^2 + (y/ay)^2) / z^2) / (pi ax ay z^4)
-
-    (Walter et al. 2007, eq. 25, anisotropic form). 0 for z <= 0. Normalised:
+    D(wm) = exp(-((x/ax)^2 + (y/ay)^2) / z^2) / (pi ax ay z^4), normalised so that
     integral D(wm) cos(theta_m) dwm = 1.
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        D in 1/sr, the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 25 (anisotropic form).
     """
     ax, ay = clamped_alphas(alpha_x, alpha_y)
     up = z > 0
@@ -62,10 +70,21 @@ def beckmann_lambda_cos_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """cos(theta) Lambda(w) = (s exp(-a^2)/sqrt(pi) - z erfc(a)) / 2 with
-    s = sqrt((ax x)^2 + (ay y)^2) and a = z/s (the exact Smith Lambda of Walter
-    et al. 2007, sec. 5.1, multiplied by z): finite (s/(2 sqrt(pi))) at the
-    horizon; 0 for z <= 0. Unitless."""
+    """cos(theta) Lambda(w) = (s exp(-a^2) / sqrt(pi) - z erfc(a)) / 2 of Beckmann, finite at the horizon.
+
+    s = sqrt((ax x)^2 + (ay y)^2), a = z / s; s / (2 sqrt(pi)) at the horizon.
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        cos(theta) Lambda(w) (unitless), the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1 (the exact Smith Lambda), multiplied by cos(theta).
+    """
     s = _s(x, y, alpha_x, alpha_y)
     up = z > 0
     zs = jnp.where(up, z, 1.0)
@@ -81,13 +100,23 @@ def beckmann_lambda_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """Exact Smith Lambda for Beckmann (Walter et al. 2007, sec. 5.1, before its
-    rational approximation):
+    """The exact Smith Lambda(w) of Beckmann, (erf(a) - 1) / 2 + exp(-a^2) / (2 a sqrt(pi)).
 
-        Lambda = (erf(a) - 1) / 2 + exp(-a^2) / (2 a sqrt(pi)),  a = |z| / s = 1 / (alpha tan(theta))
+    a = |z| / s = 1 / (alpha tan(theta)), s = sqrt((ax x)^2 + (ay y)^2); the exact form, not the paper's rational
+    approximation. Depends on |z| (either hemisphere).
 
-    Unitless, >= 0; depends on |z|; the largest finite number of the dtype at the
-    horizon, where it is infinite."""
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        Lambda >= 0 (unitless), the broadcast shape; at the horizon, where it is infinite, the largest finite
+        number of the dtype.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1.
+    """
     s = _s(x, y, alpha_x, alpha_y)
     az = jnp.abs(z)
     a = jnp.minimum(safe_div(az, s, fallback=_A_MAX), _A_MAX)
@@ -104,8 +133,19 @@ def beckmann_g1_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """Smith masking G1 = 1 / (1 + Lambda) = z / (z + z Lambda) for Beckmann
-    (Walter et al. 2007, sec. 5.1, with the exact Lambda); in [0, 1], 0 for z <= 0."""
+    """Smith masking G1(w) = 1 / (1 + Lambda(w)) = z / (z + z Lambda) of Beckmann, with the exact Lambda.
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 in [0, 1] (unitless), the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1.
+    """
     up = z > 0
     zs = jnp.where(up, z, 1.0)
     return jnp.where(up, zs / (zs + beckmann_lambda_cos_xyz(x, y, z, alpha_x, alpha_y)), 0.0)
@@ -118,8 +158,19 @@ def beckmann_g1_over_cos_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """G1(w) / cos(theta) = 1 / (z + z Lambda) for Beckmann: 2 sqrt(pi) / s at the
-    horizon; 0 for z <= 0."""
+    """G1(w) / cos(theta) = 1 / (z + z Lambda) of Beckmann, finite at the horizon (2 sqrt(pi) / s there).
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 / cos(theta) (unitless), the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1, divided by cos(theta).
+    """
     up = z > 0
     zs = jnp.where(up, z, 1.0)
     den = zs + beckmann_lambda_cos_xyz(x, y, z, alpha_x, alpha_y)
@@ -129,35 +180,95 @@ def beckmann_g1_over_cos_xyz(
 def beckmann_d(
     wm: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`beckmann_d_xyz` on last-axis vectors: D(wm) in 1/sr (Walter et al. 2007, eq. 25)."""
+    """Beckmann density of microfacet normals D(wm) for last-axis vectors (``beckmann_d_xyz``).
+
+    Args:
+        wm: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        D in 1/sr, [*batch, C]; 0 for wm_z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 25.
+    """
     return beckmann_d_xyz(*split(wm), alpha_x, alpha_y)
 
 
 def beckmann_lambda(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`beckmann_lambda_xyz` on last-axis vectors: the exact Smith Lambda(w)."""
+    """The exact Smith Lambda(w) of Beckmann for last-axis vectors (``beckmann_lambda_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        Lambda >= 0, [*batch, C]; the dtype's largest finite number at the horizon.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1.
+    """
     return beckmann_lambda_xyz(*split(w), alpha_x, alpha_y)
 
 
 def beckmann_lambda_cos(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`beckmann_lambda_cos_xyz` on last-axis vectors: cos(theta) Lambda(w), 0 below the horizon."""
+    """cos(theta) Lambda(w) of Beckmann for last-axis vectors (``beckmann_lambda_cos_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        cos(theta) Lambda(w), [*batch, C]; 0 below the horizon.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1, multiplied by cos(theta).
+    """
     return beckmann_lambda_cos_xyz(*split(w), alpha_x, alpha_y)
 
 
 def beckmann_g1(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`beckmann_g1_xyz` on last-axis vectors: Smith G1(w) = 1 / (1 + Lambda(w))."""
+    """Smith masking G1(w) = 1 / (1 + Lambda(w)) of Beckmann for last-axis vectors (``beckmann_g1_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 in [0, 1], [*batch, C]; 0 below the horizon.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1.
+    """
     return beckmann_g1_xyz(*split(w), alpha_x, alpha_y)
 
 
 def beckmann_g1_over_cos(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`beckmann_g1_over_cos_xyz` on last-axis vectors: G1(w) / cos(theta)."""
+    """G1(w) / cos(theta) of Beckmann for last-axis vectors (``beckmann_g1_over_cos_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 / cos(theta), [*batch, C]; 0 below the horizon.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1, divided by cos(theta).
+    """
     return beckmann_g1_over_cos_xyz(*split(w), alpha_x, alpha_y)
 
 

@@ -40,15 +40,22 @@ def ggx_d_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """GGX density of microfacet normals D(wm), in 1/sr, for a unit normal
-    wm = (x, y, z) given as separate components (any broadcastable shapes):
+    """GGX density of microfacet normals D(wm), for wm = (x, y, z) given as separate components.
 
-        D(wm) = 1 / (pi ax ay ((x/ax)^2 + (y/ay)^2 + z^2)^2)
+    D(wm) = 1 / (pi ax ay ((x/ax)^2 + (y/ay)^2 + z^2)^2), normalised so that integral D(wm) cos(theta_m) dwm = 1;
+    its peak, 1/(pi ax ay) at wm = n, stays finite in float32 at ALPHA_MIN.
 
-    (Walter et al. 2007, "Microfacet models for refraction through rough
-    surfaces", eq. 33; anisotropic form as in Heitz 2014, JCGT 3(2)).
-    0 for z <= 0. Normalised: integral D(wm) cos(theta_m) dwm = 1. Peak
-    1/(pi ax ay) at wm = n (3e7 at ALPHA_MIN, finite in float32).
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        D in 1/sr, the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 33; the anisotropic
+        form as in Heitz 2014, "Understanding the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2).
     """
     ax, ay = clamped_alphas(alpha_x, alpha_y)
     t = (x / ax) ** 2 + (y / ay) ** 2 + z * z
@@ -62,15 +69,22 @@ def ggx_lambda_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """Smith's auxiliary function Lambda(w) for GGX (Heitz 2014, "Understanding
-    the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2), eq. 86):
+    """Smith's auxiliary function Lambda(w) = (sqrt(1 + alpha^2 tan^2(theta)) - 1) / 2 for GGX.
 
-        Lambda(w) = (sqrt(1 + alpha^2 tan^2(theta)) - 1) / 2
+    Evaluated as a2s2 / (2 |z| (R + |z|)), a2s2 = (ax x)^2 + (ay y)^2, R = sqrt(a2s2 + z^2), which has no
+    cancellation for smooth surfaces. Depends on |z| (either hemisphere).
 
-    evaluated as a2s2 / (2 |z| (R + |z|)), a2s2 = (ax x)^2 + (ay y)^2 and
-    R = sqrt(a2s2 + z^2), which has no cancellation for smooth surfaces.
-    Unitless, >= 0; depends on |z| (either hemisphere); at the horizon (z = 0),
-    where it is infinite, the largest finite number of the dtype.
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        Lambda >= 0 (unitless), the broadcast shape; at the horizon (z = 0), where it is infinite, the largest
+        finite number of the dtype.
+
+    References:
+        Heitz 2014, "Understanding the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2), eq. 86.
     """
     a2s2 = _a2s2(x, y, alpha_x, alpha_y)
     az = jnp.abs(z)
@@ -86,9 +100,21 @@ def ggx_lambda_cos_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """cos(theta) Lambda(w) = (R - z) / 2 = a2s2 / (2 (R + z)) for GGX (Heitz 2014,
-    eq. 86 multiplied by z): finite at the horizon (alpha sin(theta) / 2 there);
-    0 for z <= 0. The form the height-correlated Smith term needs (Heitz 2014, eq. 99)."""
+    """cos(theta) Lambda(w) = (R - z) / 2 = a2s2 / (2 (R + z)) for GGX, finite at the horizon.
+
+    The form the height-correlated Smith term needs; alpha sin(theta) / 2 at the horizon.
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        cos(theta) Lambda(w) (unitless), the broadcast shape; 0 for z <= 0.
+
+    References:
+        Heitz 2014, JCGT 3(2), eq. 86 multiplied by cos(theta); used in eq. 99.
+    """
     a2s2 = _a2s2(x, y, alpha_x, alpha_y)
     up = z > 0
     r = safe_sqrt(a2s2 + z * z)
@@ -102,9 +128,19 @@ def ggx_g1_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """Smith masking G1(w) = 1 / (1 + Lambda(w)) = 2 z / (z + R) for GGX
-    (Walter et al. 2007, eq. 34), R = sqrt((ax x)^2 + (ay y)^2 + z^2).
-    Unitless, in [0, 1]; 1 at normal incidence, 0 for z <= 0."""
+    """Smith masking G1(w) = 1 / (1 + Lambda(w)) = 2 z / (z + R) for GGX, R = sqrt((ax x)^2 + (ay y)^2 + z^2).
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 in [0, 1] (unitless), the broadcast shape; 1 at normal incidence, 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 34.
+    """
     a2s2 = _a2s2(x, y, alpha_x, alpha_y)
     up = z > 0
     zs = jnp.where(up, z, 1.0)
@@ -119,10 +155,21 @@ def ggx_g1_over_cos_xyz(
     alpha_x: Float[ArrayLike, "*#shape"],
     alpha_y: Float[ArrayLike, "*#shape"] | None = None,
 ) -> Float[Array, "*shape"]:
-    """G1(w) / cos(theta) = 2 / (z + R) for GGX (Walter et al. 2007, eq. 34 divided
-    by z), R = sqrt((ax x)^2 + (ay y)^2 + z^2): finite at the horizon, where it
-    tends to 2 / (alpha sin(theta)). 0 for z <= 0. The separable Smith term of a
-    microfacet BRDF is 0.25 G1/cos(wi) G1/cos(wo) (see smith_g2_separable_over_cos)."""
+    """G1(w) / cos(theta) = 2 / (z + R) for GGX, finite at the horizon (2 / (alpha sin(theta)) there).
+
+    The separable Smith term of a microfacet BRDF is 0.25 G1/cos(wi) G1/cos(wo) (``smith_g2_separable_over_cos``).
+
+    Args:
+        x, y, z: components of a unit direction in the shading frame (z = normal); any broadcastable shapes.
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic, alpha_x);
+            clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 / cos(theta) (unitless), the broadcast shape; 0 for z <= 0.
+
+    References:
+        Walter et al. 2007, eq. 34 divided by cos(theta).
+    """
     a2s2 = _a2s2(x, y, alpha_x, alpha_y)
     up = z > 0
     zs = jnp.where(up, z, 1.0)
@@ -133,36 +180,95 @@ def ggx_g1_over_cos_xyz(
 def ggx_d(
     wm: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`ggx_d_xyz` on last-axis vectors: D(wm) in 1/sr, [*batch, C]
-    (Walter et al. 2007, eq. 33); 0 for wm_z <= 0."""
+    """GGX density of microfacet normals D(wm) for last-axis vectors (``ggx_d_xyz``).
+
+    Args:
+        wm: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        D in 1/sr, [*batch, C]; 0 for wm_z <= 0.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 33.
+    """
     return ggx_d_xyz(*split(wm), alpha_x, alpha_y)
 
 
 def ggx_lambda(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`ggx_lambda_xyz` on last-axis vectors: Smith Lambda(w) (Heitz 2014, eq. 86)."""
+    """Smith's auxiliary function Lambda(w) of GGX for last-axis vectors (``ggx_lambda_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        Lambda >= 0, [*batch, C]; the dtype's largest finite number at the horizon.
+
+    References:
+        Heitz 2014, "Understanding the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2), eq. 86.
+    """
     return ggx_lambda_xyz(*split(w), alpha_x, alpha_y)
 
 
 def ggx_lambda_cos(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`ggx_lambda_cos_xyz` on last-axis vectors: cos(theta) Lambda(w), 0 below the horizon."""
+    """cos(theta) Lambda(w) of GGX for last-axis vectors (``ggx_lambda_cos_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        cos(theta) Lambda(w), [*batch, C]; 0 below the horizon.
+
+    References:
+        Heitz 2014, JCGT 3(2), eq. 86 multiplied by cos(theta).
+    """
     return ggx_lambda_cos_xyz(*split(w), alpha_x, alpha_y)
 
 
 def ggx_g1(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`ggx_g1_xyz` on last-axis vectors: Smith G1(w) (Walter et al. 2007, eq. 34)."""
+    """Smith masking G1(w) of GGX for last-axis vectors (``ggx_g1_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 in [0, 1], [*batch, C]; 0 below the horizon.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 34.
+    """
     return ggx_g1_xyz(*split(w), alpha_x, alpha_y)
 
 
 def ggx_g1_over_cos(
     w: Float[Array, "*batch 3"], alpha_x: ArrayLike, alpha_y: ArrayLike | None = None
 ) -> Float[Array, "*batch C"]:
-    """:func:`ggx_g1_over_cos_xyz` on last-axis vectors: G1(w) / cos(theta) = 2 / (z + R)."""
+    """G1(w) / cos(theta) = 2 / (z + R) of GGX for last-axis vectors (``ggx_g1_over_cos_xyz``).
+
+    Args:
+        w: unit directions [*batch, 3] in the shading frame (z = normal).
+        alpha_x, alpha_y: roughness along the tangent and the bitangent (alpha_y None: isotropic), broadcast
+            against [*batch, C]; clamped to [ALPHA_MIN, 1].
+
+    Returns:
+        G1 / cos(theta), [*batch, C]; 0 below the horizon.
+
+    References:
+        Walter et al. 2007, eq. 34 divided by cos(theta).
+    """
     return ggx_g1_over_cos_xyz(*split(w), alpha_x, alpha_y)
 
 

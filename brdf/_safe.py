@@ -222,7 +222,7 @@ def safe_atan2(y: ArrayLike, x: ArrayLike) -> Array:
 # exceeds float32's 3.4e38 below cos ~ 1e-11; the half vector's 1/|wi + wo| does
 # the same to the gradient of every half-vector model when both directions graze.
 # Raised to the floor, f_r <= ~1e19 and its gradients <= ~1e29 in float32
-# (measured over tests/brdf/test_nan_sweep.py's edge pairs).
+# (measured over the NaN sweep's edge pairs).
 GRAZING_ULPS = 8
 
 
