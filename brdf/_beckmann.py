@@ -83,7 +83,8 @@ def beckmann_lambda_cos_xyz(
         cos(theta) Lambda(w) (unitless), the broadcast shape; 0 for z <= 0.
 
     References:
-        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1 (the exact Smith Lambda), multiplied by cos(theta).
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1 (the exact
+        Smith Lambda), multiplied by cos(theta).
     """
     s = _s(x, y, alpha_x, alpha_y)
     up = z > 0
@@ -229,7 +230,8 @@ def beckmann_lambda_cos(
         cos(theta) Lambda(w), [*batch, C]; 0 below the horizon.
 
     References:
-        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1, multiplied by cos(theta).
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.1, multiplied by
+        cos(theta).
     """
     return beckmann_lambda_cos_xyz(*split(w), alpha_x, alpha_y)
 
