@@ -149,9 +149,18 @@ def _fdr(eta):
 
 
 def fresnel_diffuse_reflectance(eta: ArrayLike) -> Array:
-    """Internal diffuse Fresnel reflectance F_dr(eta), the polynomial fit used by
-    Jensen et al. 2001 (eq. after (4), from Egan & Hilgeman 1979):
-    F_dr = -1.440/eta^2 + 0.710/eta + 0.668 + 0.0636 eta, for relative index eta >= 1."""
+    """Internal diffuse Fresnel reflectance F_dr(eta) = -1.440/eta^2 + 0.710/eta + 0.668 + 0.0636 eta.
+
+    Args:
+        eta: relative refractive index (>= 1).
+
+    Returns:
+        F_dr, the shape of ``eta``.
+
+    References:
+        Jensen et al. 2001, "A practical model for subsurface light transport", the equation after eq. 4 (the
+        polynomial fit of Egan & Hilgeman 1979).
+    """
     return _fdr(as_float(eta))
 
 
@@ -173,15 +182,21 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(32)
 
 
 def fresnel_moments(eta: ArrayLike) -> tuple[Array, Array]:
-    """Fresnel moments C_i = integral_0^1 F_r(eta, mu) mu^i dmu, i = 1, 2, of the
-    reflectance seen from inside a medium of relative index eta >= 1 (d'Eon 2012,
-    "A Better Dipole", eq. 8; pbrt-v3 section 15.5). 2 C_1 is F_dr.
+    """Fresnel moments C_i = integral_0^1 F_r(eta, mu) mu^i dmu, i = 1, 2, seen from inside a medium.
 
-    Computed by quadrature, not a fit: total internal reflection (F = 1) is
-    integrated in closed form below the critical cosine mu_c = sqrt(1 - 1/eta^2);
-    above it the substitution mu_t = cos(transmitted angle), mu dmu = mu_t dmu_t / eta^2,
-    makes the integrand smooth, so Gauss-Legendre converges exponentially and
-    the result is differentiable in eta.
+    Computed by quadrature, not a fit: total internal reflection (F = 1) is integrated in closed form below the
+    critical cosine mu_c = sqrt(1 - 1/eta^2); above it the substitution mu_t = cos(transmitted angle),
+    mu dmu = mu_t dmu_t / eta^2, makes the integrand smooth, so Gauss-Legendre converges exponentially and the
+    result is differentiable in eta. 2 C_1 is F_dr.
+
+    Args:
+        eta: relative refractive index (>= 1).
+
+    Returns:
+        (C_1, C_2), each the shape of ``eta``.
+
+    References:
+        d'Eon 2012, "A better dipole", eq. 8; pbrt-v3, sec. 15.5.
     """
     return _fresnel_moments(as_float(eta))
 

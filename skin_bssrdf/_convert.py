@@ -50,8 +50,20 @@ _U_MIN_DIFFUSE = 1e-6
 
 
 def total_from_reduced_albedo(alpha_prime: ArrayLike, eta: ArrayLike = 1.3, model: str = "dipole") -> Array:
-    """Total diffuse reflectance Rd(alpha', eta): Jensen et al. 2001 eq. 5 (``"dipole"``)
-    or Hery 2012 / d'Eon 2012 (``"better_dipole"``). alpha' in [0, 1]."""
+    """Total diffuse reflectance Rd(alpha', eta) of a semi-infinite medium.
+
+    Args:
+        alpha_prime: reduced scattering albedo alpha' = sigma_s' / sigma_t', in [0, 1].
+        eta: relative refractive index of the medium (>= 1).
+        model: ``"dipole"`` (Jensen et al. 2001) or ``"better_dipole"`` (d'Eon 2012).
+
+    Returns:
+        Rd in [0, 1], the broadcast shape.
+
+    References:
+        Jensen et al. 2001, "A practical model for subsurface light transport", eq. 5 (``"dipole"``);
+        Hery 2012 / d'Eon 2012, "A better dipole" (``"better_dipole"``).
+    """
     _check_model("total_from_reduced_albedo", model)
     check("total_from_reduced_albedo", "alpha_prime", alpha_prime, lo=0.0, hi=1.0)
     check("total_from_reduced_albedo", "eta", eta, lo=ETA_MIN, hi=ETA_MAX)
@@ -96,8 +108,21 @@ def _rd_u(u, consts, model):
 
 
 def reduced_albedo_from_total(albedo: ArrayLike, eta: ArrayLike = 1.3, model: str = "dipole") -> Array:
-    """alpha' with Rd(alpha', eta) = ``albedo`` (the inverse of ``total_from_reduced_albedo``),
-    stable and differentiable (see the module docstring). albedo in [0, 1]."""
+    """The reduced albedo alpha' whose total diffuse reflectance Rd(alpha', eta) is ``albedo``.
+
+    The inverse of ``total_from_reduced_albedo``, stable and differentiable (see the module docstring).
+
+    Args:
+        albedo: total diffuse reflectance, in [0, 1].
+        eta: relative refractive index of the medium (>= 1).
+        model: ``"dipole"`` (Jensen et al. 2001) or ``"better_dipole"`` (d'Eon 2012).
+
+    Returns:
+        alpha' in [0, 1], the broadcast shape.
+
+    References:
+        Jensen & Buhler 2002, "A rapid hierarchical rendering technique for translucent materials", sec. 4.
+    """
     _check_model("reduced_albedo_from_total", model)
     check("reduced_albedo_from_total", "albedo", albedo, lo=0.0, hi=1.0)
     check("reduced_albedo_from_total", "eta", eta, lo=ETA_MIN, hi=ETA_MAX)
@@ -146,12 +171,22 @@ def coefficients_from_albedo(
     model: str = "dipole",
     mfp_kind: str = "diffuse",
 ) -> tuple[Float[Array, "*batch channel"], Float[Array, "*batch channel"]]:
-    """(sigma_a, sigma_s') in 1/mm from total diffuse reflectance ``albedo`` in [0, 1]
-    and mean free path ``mfp`` > 0 in mm (Jensen & Buhler 2002, section 4).
+    """Scattering coefficients (sigma_a, sigma_s') from a total diffuse reflectance and a mean free path.
 
-    ``mfp_kind="diffuse"``: mfp = 1/sigma_tr, the diffuse mean free path that sets
-    the profile's width (sigma_tr of the chosen model); albedo 1 is held at the
-    named floor alpha' <= 1 - 1e-12 (an albedo ~5e-6 below 1). ``"transport"``: mfp = 1/sigma_t'.
+    Args:
+        albedo: total diffuse reflectance, in [0, 1]; albedo 1 is held at the named floor alpha' <= 1 - 1e-12
+            (an albedo ~5e-6 below 1).
+        mfp: mean free path (mm, > 0).
+        eta: relative refractive index of the medium (>= 1).
+        model: ``"dipole"`` (Jensen et al. 2001) or ``"better_dipole"`` (d'Eon 2012).
+        mfp_kind: ``"diffuse"``: mfp = 1 / sigma_tr, the diffuse mean free path that sets the profile's width
+            (sigma_tr of the chosen model); ``"transport"``: mfp = 1 / sigma_t'.
+
+    Returns:
+        (sigma_a, sigma_s') in 1/mm, the broadcast shape.
+
+    References:
+        Jensen & Buhler 2002, "A rapid hierarchical rendering technique for translucent materials", sec. 4.
     """
     owner = "coefficients_from_albedo"
     _check_model(owner, model)
@@ -197,9 +232,25 @@ def albedo_from_coefficients(
     model: str = "dipole",
     mfp_kind: str = "diffuse",
 ) -> tuple[Float[Array, "*batch channel"], Float[Array, "*batch channel"]]:
-    """(total diffuse reflectance, mean free path in mm) from (sigma_a, sigma_s') in 1/mm;
-    the inverse of ``coefficients_from_albedo``. The diffuse mean free path is Inf
-    where sigma_a = 0 (nothing is absorbed, light spreads without bound)."""
+    """Total diffuse reflectance and mean free path from scattering coefficients (sigma_a, sigma_s').
+
+    The inverse of ``coefficients_from_albedo``.
+
+    Args:
+        sigma_a: absorption coefficient (1/mm, >= 0).
+        sigma_s_prime: reduced scattering coefficient (1/mm, > 0).
+        eta: relative refractive index of the medium (>= 1).
+        model: ``"dipole"`` (Jensen et al. 2001) or ``"better_dipole"`` (d'Eon 2012).
+        mfp_kind: ``"diffuse"`` (1 / sigma_tr) or ``"transport"`` (1 / sigma_t'), as in
+            ``coefficients_from_albedo``.
+
+    Returns:
+        (albedo in [0, 1], mean free path in mm); the diffuse mean free path is Inf where sigma_a = 0 (nothing is
+        absorbed, light spreads without bound).
+
+    References:
+        Jensen & Buhler 2002, "A rapid hierarchical rendering technique for translucent materials", sec. 4.
+    """
     owner = "albedo_from_coefficients"
     _check_model(owner, model)
     if mfp_kind not in MFP_KINDS:

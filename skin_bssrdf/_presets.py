@@ -55,9 +55,20 @@ JENSEN2001: dict[str, MeasuredMaterial] = {
 
 
 def preset(name: str, model: str = "dipole", dtype=None) -> Dipole | BetterDipole:
-    """Profile for a material of Jensen et al. 2001's measured table (``JENSEN2001``
-    keys: apple, chicken1, chicken2, cream, ketchup, marble, potato, skimmilk,
-    skin1, skin2, spectralon, wholemilk), as a ``Dipole`` or ``"better_dipole"``."""
+    """The diffusion profile of a material of Jensen et al. 2001's measured table.
+
+    Args:
+        name: a key of ``JENSEN2001``: apple, chicken1, chicken2, cream, ketchup, marble, potato, skimmilk, skin1,
+            skin2, spectralon, wholemilk.
+        model: ``"dipole"`` (a ``Dipole``) or ``"better_dipole"`` (a ``BetterDipole``).
+        dtype: the profile's float dtype (None: the default float).
+
+    Returns:
+        The profile, with the material's sigma_a, sigma_s' (1/mm) and refractive index.
+
+    References:
+        Jensen et al. 2001, "A practical model for subsurface light transport", table of measured parameters.
+    """
     key = name.lower().replace(" ", "").replace("_", "")
     if key not in JENSEN2001:
         raise ValueError(f"preset: unknown material {name!r}; known: {sorted(JENSEN2001)}")

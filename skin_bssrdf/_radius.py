@@ -14,9 +14,18 @@ _R_LO, _R_HI, _STEPS = 1e-3, 1e4, 80
 
 
 def energy_radius(profile: AbstractProfile, fraction: float = 0.99) -> Float[Array, "*pbatch channel"]:
-    """Radius r (mm) with cumulative(r) = fraction x total(), per channel, by
-    bisection in log r on the closed-form cumulative energy. Use it to choose the
-    diffusion operator's neighbour radius (the tail beyond it is 1 - fraction)."""
+    """Radius (mm) inside which a profile holds ``fraction`` of its total diffuse reflectance, per channel.
+
+    Bisection in log r on the closed-form cumulative energy: cumulative(r) = fraction x total(). Use it to choose
+    the diffusion operator's neighbour radius (the tail beyond it is 1 - fraction).
+
+    Args:
+        profile: a radial diffusion profile (``Dipole``, ``Burley``, ...).
+        fraction: the share of the total energy inside the radius, in (0, 1).
+
+    Returns:
+        The radius in mm, [*pbatch, C]: one per profile and channel.
+    """
     check("energy_radius", "fraction", fraction, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
     total = profile.total()
 
