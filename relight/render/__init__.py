@@ -14,24 +14,36 @@ What the camera sees besides the shading: ``pixel_coverage`` (a render's alpha),
 background to composite over), ``texel_fraction`` / ``uncovered_fraction`` (how much of the subject lies on
 texels with data; ``seen_texels`` gives a capture's)."""
 
+from ._abstract import AbstractMethod as AbstractMethod
 from ._coverage import environment_behind as environment_behind
 from ._coverage import pixel_coverage as pixel_coverage
 from ._coverage import texel_fraction as texel_fraction
 from ._coverage import uncovered_fraction as uncovered_fraction
+from ._dense import Dense as Dense
+from ._dense import DenseLighting as DenseLighting
+from ._directional import AbstractDirectional as AbstractDirectional
+from ._directional import DirectionalGeometry as DirectionalGeometry
+from ._directional import direction_visibility as direction_visibility
+from ._fast import Fast as Fast
+from ._fast import FastGeometry as FastGeometry
+from ._fast import FastLighting as FastLighting
 from ._image_based import image_based_view as image_based_view
 from ._image_based import nearest_view as nearest_view
 from ._image_based import seen_texels as seen_texels
+from ._lights import Lights as Lights
+from ._lights import LightsLighting as LightsLighting
 from ._methods import DEFAULTS as DEFAULTS
 from ._methods import METHODS as METHODS
+from ._methods import method_from_name as method_from_name
 from ._methods import render_samples as render_samples
 from ._olat import relight_olat as relight_olat
 from ._olat import relight_olat_sweep as relight_olat_sweep
-from ._options import AbstractMethod as AbstractMethod
-from ._options import Dense as Dense
-from ._options import Fast as Fast
-from ._options import Lights as Lights
-from ._options import Reference as Reference
-from ._options import Rig as Rig
+from ._reference import Reference as Reference
+from ._reference import ReferenceGeometry as ReferenceGeometry
+from ._reference import ReferenceLighting as ReferenceLighting
+from ._rig import Rig as Rig
+from ._rig import RigLighting as RigLighting
+from ._shading import build_operator as build_operator
 from ._view import orbit_camera as orbit_camera
 from ._view import render_view as render_view
 from ._view import turntable as turntable

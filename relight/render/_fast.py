@@ -1,4 +1,5 @@
-"""Precomputation for the "fast" and "dense" relighting methods: area-weighted
+"""``Fast``, the "fast" method (order-2 SH irradiance at the bent normal x ambient occlusion, and
+split-sum specular), and its precomputation (shared with ``Dense``): area-weighted
 lat-long resampling, the GGX-prefiltered environment (split-sum, Karis 2013)
 and its DFG lookup table, and the average Fresnel transmittance for diffuse
 light entering a dielectric.
@@ -23,15 +24,23 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any, ClassVar
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 import brdf
+import skin_bssrdf
 
-from ..envmap._latlong import latlong_directions, latlong_solid_angles, sample_latlong
+from ..envmap._latlong import EnvMap, latlong_directions, latlong_solid_angles, sample_latlong
+from ..envmap._sh import sh_irradiance, sh_project
+from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, SUBSURFACE
+from ._abstract import AbstractMethod, int_at_least
+from ._directional import direction_visibility
+from ._shading import env_rotation
 
 # Roughness ladder of the prefiltered levels: alpha_k = (k / (K - 1))^2, i.e. equal
 # steps in sqrt(alpha) ("perceptual roughness", Karis 2013), 0 (the mirror) to 1.
@@ -228,3 +237,131 @@ def mean_transmittance(eta: float) -> float:
     with jax.ensure_compile_time_eval():
         f = np.asarray(brdf.fresnel_dielectric(jnp.asarray(mu[:, None]), float(eta)))[:, 0]
     return float(1.0 - 2.0 * np.sum(0.5 * w * f * mu))
+
+
+# Default samples per chunk of the fast kernel.
+_CHUNK_FAST = 16384
+
+
+class FastLighting(eqx.Module):
+    """``Fast``'s prepared lighting: order-2 SH coefficients ``sh`` [9, C], the GGX-prefiltered
+    ``levels`` and the DFG table ``lut`` [n, n, 2]."""
+
+    sh: Any
+    levels: Any
+    lut: Any
+    dtype: Any = eqx.field(static=True)
+
+
+class FastGeometry(eqx.Module):
+    """``Fast``'s geometry: ambient occlusion ``ao`` [P, 1] and bent normals ``bent`` [P, 3] (None:
+    the shading normals, nothing occluded)."""
+
+    ao: Any
+    bent: Any = None
+
+
+@jax.jit
+def _fast_kernel(m, wo, ao, bent, rot, sh, levels, lut, t_avg):
+    """Split-sum specular + SH diffuse for one chunk (see ``Fast``).
+    Returns (L_surface [Pc, C], E_subsurface [Pc, C])."""
+    rho_d, rho_s, alpha, model, t, b, n = m
+    model = model[:, None]
+    cos_v = jnp.sum(wo * n, axis=-1, keepdims=True)
+    # Irradiance at the bent normal (environment frame), scaled by ambient occlusion.
+    e = jnp.maximum(sh_irradiance(sh, bent @ rot), 0.0) * ao
+    diffuse = jnp.where(model < SUBSURFACE, rho_d / jnp.pi, 0.0) * e
+    ax = alpha[:, 0:1]
+    ay = jnp.where(model >= GGX_ANISO, alpha[:, 1:2], ax)
+    a = jnp.sqrt(ax * ay)  # anisotropic lobes are treated as isotropic of the same area
+    r = 2.0 * cos_v * n - wo
+    pre = lookup_prefiltered(levels, a, r @ rot)
+    ab = lookup_dfg(lut, jnp.clip(cos_v, 0.0, 1.0), a)
+    ggx = pre * (rho_s * ab[:, 0:1] + ab[:, 1:2])
+    spec = jnp.where(model >= GGX, ggx, jnp.where(model == BLINN_PHONG, pre * rho_s, 0.0))
+    # Lagarde & de Rousiers 2014 (Moving Frostbite to PBR, sec. 4.10.2): specular occlusion from AO.
+    so = jnp.clip((jnp.clip(cos_v, 0.0, 1.0) + ao) ** jnp.exp2(-16.0 * a - 1.0) - 1.0 + ao, 0.0, 1.0)
+    out = jnp.where(cos_v > 0, diffuse + spec * so, 0.0)
+    return out, e * t_avg
+
+
+class Fast(AbstractMethod):
+    """Order-2 SH irradiance at the bent normal x ambient occlusion, and split-sum specular with
+    specular occlusion.
+
+    Diffuse from the SH irradiance at the bent normal times ambient occlusion; specular by the
+    split-sum approximation: the GGX-prefiltered environment x the DFG table, with Lagarde & de
+    Rousiers' specular occlusion from the ambient occlusion. The subsurface term enters with the
+    mean Fresnel transmittance.
+
+    Args:
+        levels: prefiltered roughness levels (>= 2).
+        prefilter_rows: rows of the finest prefiltered level (>= 8).
+        prefilter_samples: GGX samples per prefiltered texel (>= 1).
+        ao_rays: visibility rays per sample for ambient occlusion and bent normals (>= 1).
+        lut_size: the DFG table is ``lut_size`` x ``lut_size`` (>= 2).
+
+    References:
+        Ramamoorthi & Hanrahan 2001, "An Efficient Representation for Irradiance Environment Maps",
+        eq. 7-9; Karis 2013, "Real Shading in Unreal Engine 4", eq. 4; Lagarde & de Rousiers 2014,
+        "Moving Frostbite to PBR", sec. 4.10.2.
+    """
+
+    levels: int = DEFAULT_LEVELS
+    prefilter_rows: int = DEFAULT_PREFILTER_ROWS
+    prefilter_samples: int = DEFAULT_PREFILTER_SAMPLES
+    ao_rays: int = 64
+    lut_size: int = DEFAULT_LUT_SIZE
+
+    name: ClassVar[str] = "fast"
+    KEYWORDS: ClassVar[dict[str, str]] = {k: k for k in
+                                          ("levels", "prefilter_rows", "prefilter_samples", "ao_rays", "lut_size")}
+
+    def __check_init__(self):
+        for f, lo in (("levels", 2), ("prefilter_rows", 8), ("prefilter_samples", 1), ("ao_rays", 1), ("lut_size", 2)):
+            int_at_least("fast", f, getattr(self, f), lo)
+
+    def prepare(self, env, *, dtype=jnp.float32) -> FastLighting:
+        env = EnvMap(jnp.asarray(env.radiance, dtype))
+        levels, _ = prefilter_levels(env.radiance, self.levels, self.prefilter_rows, self.prefilter_samples)
+        return FastLighting(sh_project(env, 2), levels, jnp.asarray(dfg_lut(self.lut_size), dtype), dtype)
+
+    def geometry(self, lighting: FastLighting, maps, surface, mesh=None, visibility=None, *,
+                 terminator: bool = True) -> FastGeometry:
+        if visibility is not None:
+            raise ValueError(f"method {self.name!r} takes no visibility argument (it casts its own rays from mesh)")
+        dt = lighting.dtype
+        P = surface.num_samples
+        if mesh is None:
+            return FastGeometry(jnp.ones((P, 1), dt), None)
+        dirs = brdf.fibonacci_sphere(self.ao_rays, axis=1)
+        vis = direction_visibility(mesh, surface, dirs, terminator)  # [P, K]
+        n = np.asarray(maps.frame(surface).normal, np.float64)
+        cos = np.maximum(n @ dirs.T, 0.0) * (np.asarray(surface.normal, np.float64) @ dirs.T > 0)  # [P, K]
+        tot = cos.sum(1, keepdims=True)
+        ok = tot > 0
+        ao = np.where(ok, (cos * vis).sum(1, keepdims=True) / np.where(ok, tot, 1.0), 1.0)
+        # Bent normal: n moved by the cosine-weighted mean of the unoccluded directions minus that of
+        # all directions (so it is n exactly when nothing is occluded, whatever the ray set's
+        # discretisation).
+        m_vis = np.where(ok, (cos * vis) @ dirs / np.maximum((cos * vis).sum(1, keepdims=True), 1e-12), 0.0)
+        m_all = np.where(ok, cos @ dirs / np.where(ok, tot, 1.0), 0.0)
+        bent = n + np.where(ao > 0, m_vis - m_all, 0.0)
+        bent /= np.maximum(np.linalg.norm(bent, axis=1, keepdims=True), 1e-12)
+        return FastGeometry(jnp.asarray(ao, dt), jnp.asarray(bent, dt))
+
+    def default_chunk(self) -> int:
+        return _CHUNK_FAST
+
+    def chunk_shader(self, lighting: FastLighting, geometry: FastGeometry, *, rotation=None, key=None,
+                     eta: float = skin_bssrdf.SKIN_ETA):
+        dt = lighting.dtype
+        rot = env_rotation(rotation, dt)
+        t_avg = jnp.asarray(mean_transmittance(float(eta)), dt)
+
+        def shader(chunk, want_sss):
+            bent = chunk.m[6] if geometry.bent is None else chunk.take(geometry.bent)
+            return _fast_kernel(chunk.m, chunk.wo, chunk.take(geometry.ao), bent, rot, lighting.sh, lighting.levels,
+                                lighting.lut, t_avg)
+
+        return shader

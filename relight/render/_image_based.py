@@ -14,6 +14,7 @@ better without a reflectance model (for that, fit one: ``relight.fit``).
 from __future__ import annotations
 
 import numpy as np
+from jaxtyping import Array, Float
 
 import stage
 
@@ -22,12 +23,15 @@ from ..envmap._weights import rotation_sweep_weights
 from ..image._preview import dilate, texture_view
 from ._olat import relight_olat_sweep
 
-__all__ = ["image_based_view", "nearest_view", "seen_texels"]
+__all__ = ["image_based_view", "image_based_weights", "nearest_view", "relight_photographs", "seen_texels"]
 
 # Gutter texels filled around each UV chart before the texture lookup, so the
 # bilinear lookup at a chart border does not blend in the empty background
 # (relight.image.dilate's default, as the CLI always used).
 _DILATE_TEXELS = 2
+# Frames looked up per ray cast of the camera: the primary rays are cast once for a group of frames;
+# the group bounds the textures held at once.
+_FRAMES_PER_CAST = 8
 
 
 def nearest_view(capture: stage.Capture, camera: stage.Camera) -> np.ndarray:
@@ -59,6 +63,27 @@ def seen_texels(capture: stage.Capture, surface: stage.Surface) -> tuple[np.ndar
     return grid_seen.reshape(H, W), held.reshape(H, W)
 
 
+def image_based_weights(env: EnvMap, rig: stage.Rig, rotations) -> Float[Array, "K L C"]:
+    """The light weights of a rig under the environment turned by each rotation.
+
+    Args:
+        env: lat-long environment map.
+        rig: the capture's rig (its light directions and irradiance at the rig centre).
+        rotations: [K, 3, 3] rotations of the environment (light from d arrives from R d).
+
+    Returns:
+        [K, L, C] weights: ``relight.envmap.rotation_sweep_weights`` (Voronoi cells of the light
+        directions, divided by each light's irradiance at the rig centre).
+
+    References:
+        Debevec et al. 2000, "Acquiring the Reflectance Field of a Human Face", sec. 4.
+    """
+    rots = np.asarray(rotations, np.float64)
+    if rots.ndim != 3 or rots.shape[1:] != (3, 3):
+        raise ValueError(f"rotations must be [K, 3, 3], got shape {rots.shape}")
+    return rotation_sweep_weights(env, rig.directions, rig.center_irradiance, rots)
+
+
 def image_based_view(capture: stage.Capture, surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera,
                      env: EnvMap, rotations=None, progress: stage.Progress | None = None) -> np.ndarray:
     """The texel-space ``capture`` relit under ``env`` and seen through ``camera``.
@@ -70,10 +95,7 @@ def image_based_view(capture: stage.Capture, surface: stage.Surface, mesh: stage
         mesh: the mesh the texel grid belongs to (with UVs), for the view.
         camera: the render camera (any pose: each texel's radiance comes from
             the nearest captured view, :func:`nearest_view`).
-        env: lat-long environment map; the weights are
-            ``relight.envmap.rotation_sweep_weights`` over the capture's rig
-            (Voronoi cells of its light directions, divided by each light's
-            irradiance at the rig centre).
+        env: lat-long environment map; the weights are :func:`image_based_weights`.
         rotations: optional [K, 3, 3] rotations of the environment (a turntable;
             light from d arrives from R d); default one frame, unrotated.
         progress: optional ``progress(phase, done, total)`` (``stage.Progress``):
@@ -82,12 +104,12 @@ def image_based_view(capture: stage.Capture, surface: stage.Surface, mesh: stage
     Returns:
         float32 [K, H, W, C] frames (K = 1 without ``rotations``), H x W the
         camera's image size; pixels that miss the mesh are 0.
+
+    References:
+        Debevec et al. 2000, "Acquiring the Reflectance Field of a Human Face", sec. 4.
     """
     rots = np.eye(3)[None] if rotations is None else np.asarray(rotations, np.float64)
-    if rots.ndim != 3 or rots.shape[1:] != (3, 3):
-        raise ValueError(f"rotations must be [K, 3, 3], got shape {rots.shape}")
-    rig = capture.rig
-    weights = rotation_sweep_weights(env, rig.directions, rig.center_irradiance, rots)
+    weights = image_based_weights(env, capture.rig, rots)
     relit = np.asarray(relight_olat_sweep(capture.radiance, weights))  # [K, V, P, C]
     relit = relit[:, nearest_view(capture, camera), np.arange(surface.num_samples)]  # [K, P, C]
     H, W = surface.resolution
@@ -95,8 +117,49 @@ def image_based_view(capture: stage.Capture, surface: stage.Surface, mesh: stage
     covered.reshape(-1)[np.asarray(surface.texel_index)] = True
     frames = []
     bar = stage.Phase(progress, "image-based relighting", len(rots))
-    for k in range(len(rots)):
-        tex = dilate(surface.to_texture(relit[k]), covered, _DILATE_TEXELS)
-        frames.append(texture_view(mesh, camera, {"relit": tex})["relit"])
-        bar.advance(1)
+    for k0 in range(0, len(rots), _FRAMES_PER_CAST):
+        ks = range(k0, min(k0 + _FRAMES_PER_CAST, len(rots)))
+        textures = {str(k): dilate(surface.to_texture(relit[k]), covered, _DILATE_TEXELS) for k in ks}
+        views = texture_view(mesh, camera, textures)  # one ray cast for the group of frames
+        frames += [views[str(k)] for k in ks]
+        bar.advance(len(ks))
     return np.stack(frames).astype(np.float32, copy=False)
+
+
+def relight_photographs(radiance, mask, weights, valid=None) -> tuple[np.ndarray, np.ndarray]:
+    """One camera's photographs relit under K lightings, with each frame's lighting coverage.
+
+    Args:
+        radiance: [L, H, W, C] the photographs, one per light.
+        mask: bool [H, W], the subject.
+        weights: [K, L, Cw] light weights (:func:`image_based_weights`); grey photographs (C = 1)
+            take the channel mean of colour weights.
+        valid: optional bool [L, H, W], the valid observations (inside the mask, below saturation).
+
+    Returns:
+        (frames float32 [K, H, W, C], 0 outside the mask; coverage float32 [K, H, W, 1], the share of
+        each frame's lighting (channel-mean weight) that fell on valid observations, 1 where every
+        observation is valid, 0 outside the mask).
+
+    References:
+        Debevec et al. 2000, "Acquiring the Reflectance Field of a Human Face", sec. 4.
+    """
+    radiance = np.asarray(radiance)
+    L, H, W, C = radiance.shape
+    Cw = np.shape(weights)[-1]
+    if C != Cw and C != 1:
+        raise ValueError(f"the photographs have {C} channels, but the rig and the map have {Cw}")
+    w_mean = np.mean(np.asarray(weights, np.float64), axis=-1, keepdims=True)  # [K, L, 1]
+    w = weights if C == Cw else w_mean.astype(np.float32)  # grey photographs: the mean weight
+    inside = np.asarray(mask, bool).reshape(1, H * W, 1)
+    relit = np.asarray(relight_olat_sweep(radiance.reshape(L, H * W, C), w))  # [K, P, C]
+    if valid is None:
+        cover = np.ones((len(w_mean), H * W, 1), np.float32)
+    else:
+        total = np.maximum(np.sum(w_mean, axis=1), 1e-30)  # [K, 1]
+        lost = np.asarray(relight_olat_sweep((~np.asarray(valid, bool)).reshape(L, H * W, 1).astype(np.float32),
+                                             w_mean.astype(np.float32)))  # [K, P, 1]: weight on invalid ones
+        cover = np.clip(1.0 - lost / total[:, None, :].astype(np.float32), 0.0, 1.0)  # exactly 1 if all valid
+    cover = np.where(inside, cover, np.float32(0))
+    frames = np.where(inside, relit, np.float32(0)).reshape(-1, H, W, C)
+    return frames, cover.reshape(-1, H, W, 1)

@@ -31,9 +31,11 @@ import stage
 from ..envmap._latlong import EnvMap, rotation_matrix, sample_latlong
 from ..image._preview import dilate, sample_texture
 from ..materials._maps import SUBSURFACE, MaterialMaps
-from . import _methods as rs
+from ._abstract import AbstractMethod
+from ._methods import _settings
+from ._shading import build_operator, check_inputs
 
-__all__ = ["render_view", "turntable"]
+__all__ = ["orbit_camera", "render_view", "scaled_camera", "turntable", "y_rotations"]
 
 _DILATE_TEXELS = 2
 
@@ -48,7 +50,7 @@ class _View:
     ray_dirs: np.ndarray         # [H s, W s, 3] primary ray directions (for the background)
     wo: Any                      # [P, 3] toward the camera
     uv: np.ndarray               # [P, 2]
-    geo: Any = None              # rs.Geometry of the pixel samples
+    geo: Any = None              # the method's geometry of the pixel samples
 
 
 def _textures(maps: MaterialMaps, texel_surface: stage.Surface) -> dict[str, np.ndarray]:
@@ -106,7 +108,7 @@ def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt) -> 
 
 
 def _check_view_args(maps, texel_surface, mesh, camera, env, supersample):
-    rs.check_inputs(maps, texel_surface, env)
+    check_inputs(maps, texel_surface, env)
     if not isinstance(mesh, stage.Mesh):
         raise ValueError(f"mesh must be a stage.Mesh, got {type(mesh).__name__}")
     if mesh.uv is None:
@@ -122,12 +124,13 @@ class _Renderer:
     texel-space textures and, for subsurface maps, the texel-space geometry."""
 
     def __init__(self, maps, texel_surface, mesh, env, method, settings, progress):
-        self.s = rs._settings(method, settings)
+        self.s = _settings(method, settings)
+        self.method = self.s["method"]
         self.dt = self.s["dtype"]
         self.maps, self.texel_surface, self.mesh, self.env = maps, texel_surface, mesh, env
         self.progress = lambda phase: stage.Phase(progress, phase)
         self.progress("lighting")
-        self.lt = rs.prepare_lighting(env, self.s["method"].name, self.s)
+        self.lt = self.method.prepare(env, dtype=self.dt)
         self.tex = _textures(maps, texel_surface)
         model = np.asarray(maps.model)
         self.has_sss = bool(np.any(model == SUBSURFACE))
@@ -139,7 +142,7 @@ class _Renderer:
         v = _view(self.tex, self.mesh, camera, supersample, self.dt)
         if v.surface is not None:
             self.progress("visibility")
-            v.geo = rs.prepare_geometry(self.lt, v.maps, v.surface, self.mesh)
+            v.geo = self.method.geometry(self.lt, v.maps, v.surface, self.mesh, terminator=self.s["terminator"])
         return v
 
     def exitance_texture(self, rotation, key):
@@ -148,13 +151,12 @@ class _Renderer:
             return None
         self.progress("subsurface (texel space)")
         if self.tex_geo is None:
-            self.tex_geo = rs.prepare_geometry(self.lt, self.maps, self.texel_surface, self.mesh)
-            self.op = self.s["operator"] or rs.build_operator(self.maps, self.texel_surface)
-        lt = self.lt
-        if self.s["operator"] is None:
-            lt = dataclasses.replace(lt, settings={**lt.settings, "operator": self.op})
+            self.tex_geo = self.method.geometry(self.lt, self.maps, self.texel_surface, self.mesh,
+                                                terminator=self.s["terminator"])
+            self.op = self.s["operator"] or build_operator(self.maps, self.texel_surface)
         wo = self.maps.frame(self.texel_surface).normal
-        _, M = rs.shade(lt, self.tex_geo, self.maps, self.texel_surface, wo, rotation=rotation, key=key)
+        _, M = self.method.shade(self.lt, self.tex_geo, self.maps, self.texel_surface, wo, rotation=rotation, key=key,
+                                 eta=self.s["eta"], chunk=self.s["chunk"], operator=self.op)
         # Only subsurface texels hold an exitance: a pixel on the subsurface rung next to a texel on
         # another rung must not blend that texel's 0 in (dark seams where the rungs meet), so the
         # others are filled from their subsurface neighbours, as chart borders are.
@@ -177,14 +179,16 @@ class _Renderer:
         if v.surface is not None:
             self.progress("shading")
             sss = None if m_tex is None else jnp.asarray(sample_texture(m_tex, v.uv), self.dt)
-            rad, _ = rs.shade(self.lt, v.geo, v.maps, v.surface, v.wo, rotation=rotation, key=key, sss_exitance=sss)
+            rad, _ = self.method.shade(self.lt, v.geo, v.maps, v.surface, v.wo, rotation=rotation, key=key,
+                                       eta=self.s["eta"], chunk=self.s["chunk"], operator=self.s["operator"],
+                                       sss_exitance=sss)
             img[np.asarray(v.surface.texel_index)] = np.asarray(rad, np.float32)
         img = img.reshape(camera.height, s, camera.width, s, C).mean(axis=(1, 3))
         return np.where(np.isfinite(img), img, 0.0).astype(np.float32)
 
 
 def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
-                *, method: str | rs.AbstractMethod = "rig", supersample: int = 2, background: bool = True, key=None,
+                *, method: str | AbstractMethod = "rig", supersample: int = 2, background: bool = True, key=None,
                 progress: stage.Progress | None = None, **settings) -> np.ndarray:
     """Render the texel-space ``maps`` (over ``texel_surface``, from
     ``stage.texel_samples(mesh, ...)``) on ``mesh`` as ``camera`` sees it under
@@ -216,8 +220,46 @@ def orbit_camera(camera: stage.Camera, angle: float, axis=(0.0, 1.0, 0.0)) -> st
     return eqx.tree_at(lambda c: c.R, camera, jnp.asarray(camera.R @ Q.T.astype(camera.R.dtype)))
 
 
+def y_rotations(angles_deg) -> np.ndarray:
+    """Rotations of the environment about +y (a turntable).
+
+    Args:
+        angles_deg: [K] angles in degrees (right-handed about +y).
+
+    Returns:
+        float64 [K, 3, 3] rotations R_k: light that arrived from d arrives from R_k d.
+    """
+    return np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
+                     for a in np.asarray(angles_deg, np.float64).reshape(-1)])
+
+
+def scaled_camera(camera: stage.Camera, size: int) -> stage.Camera:
+    """``camera`` resampled to ``size`` pixels on its longer side.
+
+    Width and height are scaled (rounded, aspect kept) and the intrinsics' rows with them (fx, skew,
+    cx by the width's factor; fy, cy by the height's), so every pixel sees the same part of the
+    scene at the new size. The pose is unchanged.
+
+    Args:
+        camera: a ``stage.Camera``.
+        size: pixels on the longer side (>= 1).
+
+    Returns:
+        The scaled camera (``camera`` itself when its size does not change).
+    """
+    if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
+        raise ValueError(f"size must be an integer >= 1, got {size!r}")
+    s = size / max(camera.width, camera.height)
+    w, h = max(1, round(camera.width * s)), max(1, round(camera.height * s))
+    if (w, h) == (camera.width, camera.height):
+        return camera
+    scale = np.diag([w / camera.width, h / camera.height, 1.0])
+    K = jnp.asarray(scale @ np.asarray(camera.K, np.float64), camera.K.dtype)
+    return stage.Camera(K=K, R=camera.R, t=camera.t, width=w, height=h, orthographic=camera.orthographic)
+
+
 def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
-              *, frames: int = 24, mode: str = "envmap", method: str | rs.AbstractMethod = "rig",
+              *, frames: int = 24, mode: str = "envmap", method: str | AbstractMethod = "rig",
               axis=(0.0, 1.0, 0.0),
               supersample: int = 2, background: bool = True, key=None,
               progress: stage.Progress | None = None, **settings) -> Iterator[np.ndarray]:
