@@ -51,6 +51,7 @@ from ._photos import read_photo_capture as read_photo_capture
 from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
+from ._regions import read_regions as read_regions
 from ._resultset import FolderLockedError as FolderLockedError
 from ._resultset import ForeignFolderError as ForeignFolderError
 from ._resultset import NoSpaceError as NoSpaceError
@@ -85,6 +86,7 @@ from ._texture_set import read_maps as read_maps
 from ._texture_set import texture_set as texture_set
 from ._texture_set import write_maps as write_maps
 from ._texture_set import write_texture_set as write_texture_set
+from ._texture_set import write_texture_set_files as write_texture_set_files
 from ._textures import HEAD_SKIN_FILES as HEAD_SKIN_FILES
 from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
@@ -153,6 +155,7 @@ __all__ = [
     "read_json",
     "read_maps",
     "read_pfm",
+    "read_regions",
     "read_texture",
     "read_photo_capture",
     "read_png",
@@ -172,4 +175,5 @@ __all__ = [
     "write_photo_capture",
     "write_png",
     "write_texture_set",
+    "write_texture_set_files",
 ]

@@ -1,6 +1,6 @@
 """The ``relight`` command as a researcher meets it (issue 18): ``--version``, a ``--help`` that imports no
 JAX, progress bars with one bar and one total per phase and no ETA while compiling, ``-q`` / ``-qq``, fit's
-``--solver`` (``--method`` a deprecated alias), previews enlarged past 256 px (``truth/`` included), and
+``--solver`` (the old ``--method`` refused), previews enlarged past 256 px (``truth/`` included), and
 fit's report: every error over all seen texels and over the unflagged ones, with the counts."""
 
 import io
@@ -121,7 +121,7 @@ def test_command_help_builds_only_that_command(capsys):
     assert exc.value.code == 0
     text = capsys.readouterr().out
     assert "--solver" in text and "least-squares solver" in text
-    assert "--method" not in text  # the deprecated alias is accepted but not advertised
+    assert "--method" not in text
 
 
 def test_demo_help_has_a_description(capsys):
@@ -209,18 +209,12 @@ def test_a_reading_phase_says_reading_and_quiet_draws_nothing():
 # ------------------------------------------------------------------ --solver
 
 
-def test_fit_method_is_a_deprecated_alias_of_solver(capsys):
-    from relight.cli._common import CLIError
-    from relight.cli.fit import resolve_solver
-
-    args = SimpleNamespace(solver=None, method="gn")
-    assert resolve_solver(args) == "gn" and args.solver == "gn"
-    assert capsys.readouterr().err.count("--method is deprecated") == 1
-    args = SimpleNamespace(solver="dogleg", method=None)
-    assert resolve_solver(args) == "dogleg" and capsys.readouterr().err == ""
-    assert resolve_solver(SimpleNamespace(solver=None, method=None)) == "lm"
-    with pytest.raises(CLIError, match="--method gn and --solver dogleg"):
-        resolve_solver(SimpleNamespace(solver="dogleg", method="gn"))
+def test_fit_method_is_refused(capsys):
+    """``fit --method`` (the solver's old name, removed before the first release) is a usage error."""
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "somewhere", "--out", "elsewhere", "--method", "gn"])
+    assert exc.value.code == 2
+    assert "unrecognized arguments: --method" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ the report's errors
@@ -239,8 +233,8 @@ def test_errors_over_all_seen_and_unflagged_texels_with_counts():
     """Six texels, one unseen: known relative errors. Albedo: 1%, 1%, 10%, 10%, 40% on the five seen (the two
     10% and the 40% ones flagged); roughness only where fit and truth both have a lobe (the Lambert fit's
     placeholder 0.5 against a true 0.25 is a 100% error that must not count); normals in degrees."""
-    from relight.cli.fit import _against_truth
-    from relight.materials._maps import GGX, LAMBERT
+    from relight.fitting import truth_errors
+    from relight.materials import GGX, LAMBERT
 
     P = 6
     t_rho = np.full((P, 3), 0.5)
@@ -257,20 +251,21 @@ def test_errors_over_all_seen_and_unflagged_texels_with_counts():
                    failed=np.array([False, False, True, True, True, False]),
                    observed=np.array([20, 20, 20, 20, 20, 0]))
     truth = _fake(t_rho, np.full((P, 1), 0.028), t_alpha, t_model, t_n)
-    a = _against_truth(fitted, truth, normals=True)
+    a = truth_errors(fitted, truth, normals=True)
     e = a["errors"]
     assert a["seen_samples"] == 5 and a["unflagged_samples"] == 2
     assert e["diffuse_albedo_rel"]["all_seen"]["samples"] == 5
     assert e["diffuse_albedo_rel"]["all_seen"]["median"] == pytest.approx(0.10, rel=1e-9)
     assert e["diffuse_albedo_rel"]["unflagged"] == pytest.approx({"samples": 2, "median": 0.01, "p95": 0.01})
-    assert a["diffuse_albedo_rel_error_median"] == pytest.approx(0.01)  # the flat key: the unflagged row
+    assert not any("_rel_error_" in k for k in a)  # no flat copies of the unflagged rows
     assert e["roughness_rel"]["all_seen"]["samples"] == 4  # the Lambert texel left out
     assert e["roughness_rel"]["all_seen"]["median"] == pytest.approx(0.11, rel=1e-9)  # of 2, 2, 20, 20%
     assert e["roughness_rel"]["unflagged"]["median"] == pytest.approx(0.02, rel=1e-9)
     assert e["specular_albedo_rel"]["all_seen"]["median"] == pytest.approx(0.5, rel=1e-6)
     assert e["normal_deg"]["all_seen"]["median"] == pytest.approx(4.0, abs=1e-6)
     assert e["normal_deg"]["unflagged"]["median"] == pytest.approx(1.0, abs=1e-6)
-    assert "normal_deg" not in _against_truth(fitted, truth)["errors"]
+    assert "normal_deg" not in truth_errors(fitted, truth)["errors"]
+    assert not any(k.startswith("mfp") for k in a["errors"])  # the truth does not scatter
 
 
 def test_upscale_nearest_keeps_texels_square():
@@ -314,8 +309,9 @@ def test_fit_report_rows_say_over_which_texels(fitted):
     # Three significant figures: no number in the report runs past 4 digits after the point.
     assert not re.search(r"\d\.\d{5,}", md), md
     settings = json.loads((maps / "settings.json").read_text())
-    assert settings["flags"]["solver"] == "gn" and settings["resolved"]["fit_options"] in (
-        {"method": "gn", "normals": True}, {"solver": "gn", "normals": True})
+    assert settings["flags"]["solver"] == "gn" and settings["resolved"]["fit_options"] == {"solver": "gn",
+                                                                                           "normals": True}
+    assert "method" not in settings["flags"]
 
 
 def test_texel_previews_are_enlarged_and_truth_has_them(fitted):
@@ -327,7 +323,7 @@ def test_texel_previews_are_enlarged_and_truth_has_them(fitted):
             assert min(img.shape[:2]) >= PREVIEW_MIN_PX and img.shape[0] % RES == 0, (folder, name, img.shape)
             k = img.shape[0] // RES
             np.testing.assert_array_equal(img[::k, ::k], img[k - 1::k, k - 1::k])  # whole-texel squares
-    from relight.io._resultset import open_result_set
+    from relight.results import open_result_set
 
     read_maps(fitted / "cap" / "truth")
     truth_set = open_result_set(fitted / "cap" / "truth")  # the previews are part of the set: its manifest lists
