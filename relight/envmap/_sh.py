@@ -38,7 +38,15 @@ __all__ = [
 
 
 def sh_index(l: int, m: int) -> int:
-    """Flat index of the real SH term (l, m): ``l * l + l + m``."""
+    """Flat index ``l * l + l + m`` of the real spherical harmonic (l, m).
+
+    Args:
+        l: band, >= 0.
+        m: order, in [-l, l].
+
+    Returns:
+        The index into a ``[(order+1)^2, ...]`` coefficient array.
+    """
     if not -l <= m <= l:
         raise ValueError(f"SH index needs -l <= m <= l, got l={l}, m={m}")
     return l * l + l + m
@@ -52,13 +60,18 @@ def _norm(l: int, m: int) -> float:
 
 @functools.partial(jax.jit, static_argnames=('order',))
 def sh_basis(directions: Float[ArrayLike, "*batch 3"], order: int) -> Float[Array, "*batch K"]:
-    """All real SH up to band ``order`` at unit ``directions``: ``[..., (order+1)^2]``.
+    """Every real spherical harmonic up to band ``order`` at unit ``directions``.
 
-    Uses P_l^m(z) = (1 - z^2)^(m/2) Q_l^m(z) and (1 - z^2)^(m/2) (cos, sin)(m phi)
-    = (Re, Im)(x + i y)^m, so the basis is a polynomial in (x, y, z): no atan2,
-    no singularity at the poles, smooth gradients everywhere. Q obeys
-    Q_m^m = (2m-1)!!, Q_{m+1}^m = (2m+1) z Q_m^m,
-    (l-m) Q_l^m = (2l-1) z Q_{l-1}^m - (l+m-1) Q_{l-2}^m.
+    Uses P_l^m(z) = (1 - z^2)^(m/2) Q_l^m(z) and (1 - z^2)^(m/2) (cos, sin)(m phi) = (Re, Im)(x + i y)^m, so the
+    basis is a polynomial in (x, y, z): no atan2, no singularity at the poles, smooth gradients everywhere.
+    Q obeys Q_m^m = (2m-1)!!, Q_{m+1}^m = (2m+1) z Q_m^m, (l-m) Q_l^m = (2l-1) z Q_{l-1}^m - (l+m-1) Q_{l-2}^m.
+
+    Args:
+        directions: unit vectors [*batch, 3].
+        order: the highest band, >= 0.
+
+    Returns:
+        Y [*batch, (order+1)^2], indexed by ``sh_index(l, m)``.
     """
     if order < 0:
         raise ValueError(f"SH order must be >= 0, got {order}")
@@ -106,9 +119,17 @@ def _project(radiance: Array, order: int) -> Array:
 
 
 def sh_project(env: EnvMap, order: int = 2) -> Float[Array, "K C"]:
-    """SH coefficients ``L_lm = sum_pixels L(d) Y_lm(d) dOmega`` of a lat-long map
-    (the exact projection of the piecewise-constant map sampled at pixel
-    centres), bands 0..order: ``[(order+1)^2, C]``."""
+    """Spherical-harmonic coefficients L_lm = sum_pixels L(d) Y_lm(d) dOmega of a lat-long map.
+
+    The exact projection of the piecewise-constant map sampled at pixel centres.
+
+    Args:
+        env: a lat-long environment map (radiance [H, W, C]).
+        order: the highest band.
+
+    Returns:
+        Coefficients [(order+1)^2, C].
+    """
     return _project(env.radiance, int(order))
 
 
@@ -116,7 +137,15 @@ def sh_project(env: EnvMap, order: int = 2) -> Float[Array, "K C"]:
 def sh_reconstruct(
     coeffs: Float[ArrayLike, "K C"], directions: Float[ArrayLike, "*batch 3"]
 ) -> Float[Array, "*batch C"]:
-    """``sum_k coeffs[k] Y_k(d)``: the band-limited map at ``directions``."""
+    """The band-limited map sum_k coeffs[k] Y_k(d) at ``directions``.
+
+    Args:
+        coeffs: spherical-harmonic coefficients [K, C], K = (order+1)^2.
+        directions: unit vectors [*batch, 3].
+
+    Returns:
+        Radiance [*batch, C].
+    """
     coeffs = jnp.asarray(coeffs)
     order = _order_of(coeffs.shape[0])
     return sh_basis(directions, order) @ coeffs
@@ -130,10 +159,20 @@ def _order_of(k: int) -> int:
 
 
 def sh_irradiance_kernel(order: int) -> np.ndarray:
-    """A_hat_l, l = 0..order: the clamped-cosine kernel's SH coefficients scaled
-    as in Ramamoorthi & Hanrahan 2001, eq. 8-9: A_0 = pi, A_1 = 2 pi / 3,
-    A_l = 0 for odd l > 1, and for even l
-    A_l = 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) * l! / (2^l ((l/2)!)^2)."""
+    """The clamped-cosine kernel's spherical-harmonic coefficients A_hat_l, l = 0..order.
+
+    A_0 = pi, A_1 = 2 pi / 3, A_l = 0 for odd l > 1, and for even l
+    A_l = 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) * l! / (2^l ((l/2)!)^2).
+
+    Args:
+        order: the highest band.
+
+    Returns:
+        A_hat [order + 1] (NumPy, float64).
+
+    References:
+        Ramamoorthi & Hanrahan 2001, "An efficient representation for irradiance environment maps", eq. 8-9.
+    """
     out = np.zeros(order + 1)
     for l in range(order + 1):
         if l == 0:
@@ -152,12 +191,22 @@ def sh_irradiance_kernel(order: int) -> np.ndarray:
 def sh_irradiance(
     coeffs: Float[ArrayLike, "K C"], normals: Float[ArrayLike, "*batch 3"], order: int = 2
 ) -> Float[Array, "*batch C"]:
-    """Irradiance E(n) = sum_{l <= order} A_hat_l sum_m L_lm Y_lm(n) (Ramamoorthi &
-    Hanrahan 2001, eq. 7; the default order 2 is their nine-coefficient method).
+    """Irradiance E(n) = sum_(l <= order) A_hat_l sum_m L_lm Y_lm(n) from a map's SH coefficients.
 
-    For any non-negative map, |E - E_order2| <= (3/32) * integral of L over the
-    sphere: the clamped cosine max(0, t) and its band-2 truncation
-    1/4 + t/2 + (15 t^2 - 5)/32 differ by at most 3/32 (at grazing, t = 0).
+    The default order 2 is the nine-coefficient method. For any non-negative map,
+    |E - E_order2| <= (3/32) x the integral of L over the sphere: the clamped cosine max(0, t) and its band-2
+    truncation 1/4 + t/2 + (15 t^2 - 5)/32 differ by at most 3/32 (at grazing, t = 0).
+
+    Args:
+        coeffs: the map's coefficients [K, C] (``sh_project``), K >= (order+1)^2.
+        normals: unit surface normals [*batch, 3].
+        order: the highest band used.
+
+    Returns:
+        Irradiance [*batch, C] (radiance x sr).
+
+    References:
+        Ramamoorthi & Hanrahan 2001, "An efficient representation for irradiance environment maps", eq. 7.
     """
     coeffs = jnp.asarray(coeffs)
     available = _order_of(coeffs.shape[0])

@@ -133,11 +133,23 @@ def _blocks(n: int) -> tuple[int, int]:
 def voronoi_cell_integrals(
     env: EnvMap, directions: Float[ArrayLike, "L 3"], supersample: int = 1
 ) -> Float[Array, "L C"]:
-    """Radiance integrated over each light's spherical Voronoi cell, ``int_cell L dOmega``
-    (radiance x sr), by assigning every (sub-)pixel to its nearest light.
+    """Radiance integrated over each light's spherical Voronoi cell, int_cell L dOmega.
 
-    Nearest = largest ``d . light`` (the geodesic nearest for unit vectors).
-    The sum over lights equals :func:`envmap_integral` up to rounding.
+    Every (sub-)pixel goes to its nearest light: the largest d . light (the geodesic nearest for unit vectors).
+    The sum over lights equals ``envmap_integral`` up to rounding.
+
+    Args:
+        env: lat-long environment map (radiance [H, W, C]).
+        directions: unit vectors [L, 3] from the rig centre toward each light, in the map's frame (x right,
+            y up, z toward the camera).
+        supersample: each map pixel is split into s x s sub-pixels (exact sub-pixel solid angles) before
+            assignment; energy conservation holds for any s.
+
+    Returns:
+        Radiance x sr, [L, C].
+
+    References:
+        Debevec et al. 2000, "Acquiring the reflectance field of a human face" (the lights' cells of the sphere).
     """
     directions, _ = _check_rig(env, directions, None)
     return _voronoi_jit(env, directions, int(supersample))
@@ -208,10 +220,15 @@ def light_weights(
 
 
 def rig_triangulation(directions: Float[ArrayLike, "L 3"]) -> Int[np.ndarray, "F 3"]:
-    """Triangles (light index triples, outward-facing) of the convex hull of the
-    light directions: the spherical triangulation the barycentric weights use.
+    """Outward-facing triangles of the convex hull of the light directions (scipy's Qhull).
 
-    Computed with scipy's Qhull on concrete (non-traced) directions.
+    The spherical triangulation the barycentric weights use.
+
+    Args:
+        directions: unit vectors [L, 3] toward each light; concrete (not traced).
+
+    Returns:
+        Light index triples [F, 3] (NumPy).
     """
     from scipy.spatial import ConvexHull
 
@@ -232,18 +249,26 @@ def barycentric_cell_integrals(
     faces: Int[ArrayLike, "F 3"] | None = None,
     supersample: int = 1,
 ) -> Float[Array, "L C"]:
-    """Radiance integrated against each light's spherical barycentric "hat"
-    function (piecewise-linear on the rig triangulation), radiance x sr.
+    """Radiance integrated against each light's spherical barycentric hat function, radiance x sr.
 
-    A direction ``d`` inside triangle (a, b, c) has coordinates
-    ``lambda = M^-1 d`` with ``M = [a b c]`` (its gnomonic barycentric
-    coordinates once normalised to sum to 1); its radiance x solid angle is
-    split between a, b, c in those proportions, so the hats sum to 1 and total
-    energy is conserved exactly. The containing triangle is the hull facet the
-    ray from the centre along ``d`` leaves through. For a rig that does not
-    surround the centre (a hemisphere), directions below it fall on facets
-    through or behind the centre; their negative coordinates are clipped and
-    the rest renormalised, which still conserves energy.
+    A direction d inside triangle (a, b, c) has coordinates lambda = M^-1 d with M = [a b c] (its gnomonic
+    barycentric coordinates once normalised to sum to 1); its radiance x solid angle is split between a, b, c in
+    those proportions, so the hats sum to 1 and total energy is conserved exactly. The containing triangle is the
+    hull facet the ray from the centre along d leaves through. For a rig that does not surround the centre (a
+    hemisphere), directions below it fall on facets through or behind the centre; their negative coordinates are
+    clipped and the rest renormalised, which still conserves energy.
+
+    Args:
+        env: lat-long environment map (radiance [H, W, C]).
+        directions: unit vectors [L, 3] from the rig centre toward each light, in the map's frame (x right,
+            y up, z toward the camera).
+        faces: triangles [F, 3] of light indices (None: ``rig_triangulation(directions)``, which needs
+            concrete directions).
+        supersample: each map pixel is split into s x s sub-pixels (exact sub-pixel solid angles) before
+            assignment; energy conservation holds for any s.
+
+    Returns:
+        Radiance x sr, [L, C].
     """
     directions, _ = _check_rig(env, directions, None)
     if faces is None:
@@ -302,18 +327,30 @@ def light_weights_barycentric(
     faces: Int[ArrayLike, "F 3"] | None = None,
     supersample: int = 1,
 ) -> Float[Array, "L C"]:
-    """Smooth light weights: the map integrated against each light's barycentric
-    hat function over the rig triangulation, divided by the light's irradiance.
+    """Smooth per-light weights for image-based relighting: the map against each light's barycentric hat.
 
-    Same convention and energy guarantee as :func:`light_weights`
-    (``relit = sum_l w_l OLAT_l``; ``sum_l w_l E_l`` = the map's integral), but
-    continuous in the environment, which removes the shadow "popping" of a
-    small bright source when the map is rotated. ``faces`` defaults to
-    :func:`rig_triangulation` (requires concrete directions).
+    The same convention and energy guarantee as ``light_weights`` (relit = sum_l w_l OLAT_l; sum_l w_l E_l is the
+    map's integral), but continuous in the environment, which removes the shadow "popping" of a small bright
+    source when the map is rotated. Absent lights (irradiance 0 in every channel) get weight 0 and the
+    triangulation is that of the present lights (a given ``faces`` must then use present lights only); the same
+    errors as ``light_weights``.
 
-    Absent lights (irradiance 0 in every channel) get weight 0 and the
-    triangulation is that of the present lights (given ``faces`` must then
-    use present lights only); the same errors as :func:`light_weights`.
+    Args:
+        env: lat-long environment map (radiance [H, W, C]).
+        directions: unit vectors [L, 3] from the rig centre toward each light, in the map's frame (x right,
+            y up, z toward the camera).
+        irradiance: irradiance each light delivers at the rig centre at normal incidence when on alone,
+            [L, C] or [L]; >= 0, at least one light positive.
+        faces: triangles [F, 3] of light indices (None: ``rig_triangulation(directions)``, which needs
+            concrete directions).
+        supersample: each map pixel is split into s x s sub-pixels (exact sub-pixel solid angles) before
+            assignment; energy conservation holds for any s.
+
+    Returns:
+        Weights w [L, C] (dimensionless).
+
+    References:
+        Debevec et al. 2000, "Acquiring the reflectance field of a human face".
     """
     directions, irradiance = _check_rig(env, directions, irradiance)
     present = _present(irradiance)
@@ -342,10 +379,25 @@ def rotation_sweep_weights(
 ) -> Float[Array, "N L C"]:
     """Light weights for the environment rotated by each of ``rotations`` (a turntable).
 
-    Rotating the environment by R is the same as rotating the rig by R^T, so
-    the map is never resampled: light l sees the map in direction
-    ``R^T d_l``. Feed the result to :func:`relight.render.relight_olat_sweep`
-    to relight all N rotations in one pass over the OLAT stack.
+    Rotating the environment by R is the same as rotating the rig by R^T, so the map is never resampled: light l
+    sees the map in direction R^T d_l. Feed the result to ``relight.render.relight_olat_sweep`` to relight all N
+    rotations in one pass over the OLAT stack.
+
+    Args:
+        env: lat-long environment map (radiance [H, W, C]).
+        directions: unit vectors [L, 3] from the rig centre toward each light, in the map's frame (x right,
+            y up, z toward the camera).
+        irradiance: irradiance each light delivers at the rig centre at normal incidence when on alone,
+            [L, C] or [L]; >= 0, at least one light positive.
+        rotations: rotation matrices [N, 3, 3] applied to the environment.
+        method: ``"voronoi"`` (``light_weights``) or ``"barycentric"`` (``light_weights_barycentric``).
+        faces: triangles [F, 3] of light indices (None: ``rig_triangulation(directions)``, which needs
+            concrete directions). Barycentric only.
+        supersample: each map pixel is split into s x s sub-pixels (exact sub-pixel solid angles) before
+            assignment; energy conservation holds for any s.
+
+    Returns:
+        Weights [N, L, C].
     """
     if method not in ("voronoi", "barycentric"):
         raise ValueError(f"unknown light-weight method {method!r}; expected 'voronoi' or 'barycentric'")
