@@ -21,10 +21,21 @@ MASKINGS = ("smith", "smith_height_correlated", "v_groove")
 def smith_g2_separable_over_cos(
     g1_over_cos_i: Float[ArrayLike, "*#shape"], g1_over_cos_o: Float[ArrayLike, "*#shape"]
 ) -> Float[Array, "*shape"]:
-    """Separable Smith masking-shadowing divided by the microfacet BRDF's
-    4 cos_i cos_o: G1(wi) G1(wo) / (4 cos_i cos_o) (Walter et al. 2007, eq. 23),
-    from the distribution's G1 / cos values (:func:`ggx_g1_over_cos`,
-    :func:`beckmann_g1_over_cos`): finite at grazing angles. Unitless. Elementwise."""
+    """Separable Smith masking-shadowing over the microfacet BRDF's 4 cos_i cos_o: G1(wi) G1(wo) / (4 cos_i cos_o).
+
+    Built from the distribution's G1 / cos values (``ggx_g1_over_cos``, ``beckmann_g1_over_cos``), so finite at
+    grazing angles. Elementwise.
+
+    Args:
+        g1_over_cos_i: G1(wi) / cos(theta_i).
+        g1_over_cos_o: G1(wo) / cos(theta_o).
+
+    Returns:
+        G2 / (4 cos_i cos_o) (unitless), the broadcast shape.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 23.
+    """
     return 0.25 * jnp.asarray(g1_over_cos_i) * jnp.asarray(g1_over_cos_o)
 
 
@@ -34,13 +45,21 @@ def smith_g2_height_correlated_over_cos(
     lambda_cos_i: Float[ArrayLike, "*#shape"],
     lambda_cos_o: Float[ArrayLike, "*#shape"],
 ) -> Float[Array, "*shape"]:
-    """Height-correlated Smith masking-shadowing G2 = 1 / (1 + Lambda(wi) + Lambda(wo))
-    (Heitz 2014, eq. 99) divided by 4 cos_i cos_o, from the distribution's
-    cos(theta) Lambda values (:func:`ggx_lambda_cos`, :func:`beckmann_lambda_cos`):
+    """Height-correlated Smith masking-shadowing over 4 cos_i cos_o, G2 = 1 / (1 + Lambda(wi) + Lambda(wo)).
 
-        G2 / (4 cos_i cos_o) = 1 / (4 (cos_i cos_o + cos_o lc_i + cos_i lc_o))
+    From the distribution's cos(theta) Lambda values (``ggx_lambda_cos``, ``beckmann_lambda_cos``):
+    G2 / (4 cos_i cos_o) = 1 / (4 (cos_i cos_o + cos_o lc_i + cos_i lc_o)), finite at grazing angles. Elementwise.
 
-    finite at grazing angles; 0 (gradient 0) where the denominator is 0. Elementwise."""
+    Args:
+        cos_theta_i, cos_theta_o: cosines of the incident and outgoing directions.
+        lambda_cos_i, lambda_cos_o: cos(theta) Lambda(w) of each.
+
+    Returns:
+        G2 / (4 cos_i cos_o) (unitless), the broadcast shape; 0 (gradient 0) where the denominator is 0.
+
+    References:
+        Heitz 2014, "Understanding the masking-shadowing function in microfacet-based BRDFs", JCGT 3(2), eq. 99.
+    """
     den = cos_theta_i * cos_theta_o + cos_theta_o * lambda_cos_i + cos_theta_i * lambda_cos_o
     return safe_div(0.25, den)
 
@@ -51,11 +70,22 @@ def v_groove_g2_over_cos(
     cos_theta_m: Float[ArrayLike, "*#shape"],
     wo_dot_wm: Float[ArrayLike, "*#shape"],
 ) -> Float[Array, "*shape"]:
-    """V-groove attenuation G = min(1, 2 zm zo / (wo.wm), 2 zm zi / (wo.wm))
-    (Cook & Torrance 1982, after Torrance & Sparrow 1967) divided by
-    4 cos_i cos_o, evaluated without dividing by a lone cosine: finite at grazing
-    angles. Unitless. Elementwise; meaningful where both directions are above the
-    horizon."""
+    """V-groove attenuation G = min(1, 2 zm zo / (wo.wm), 2 zm zi / (wo.wm)) over 4 cos_i cos_o.
+
+    Evaluated without dividing by a lone cosine, so finite at grazing angles. Elementwise; meaningful where both
+    directions are above the horizon.
+
+    Args:
+        cos_theta_i, cos_theta_o: cosines of the incident and outgoing directions (zi, zo).
+        cos_theta_m: cosine of the microfacet normal (zm).
+        wo_dot_wm: wo . wm.
+
+    Returns:
+        G / (4 cos_i cos_o) (unitless), the broadcast shape.
+
+    References:
+        Cook & Torrance 1982, "A reflectance model for computer graphics" (after Torrance & Sparrow 1967).
+    """
     lo = jnp.minimum(cos_theta_i, cos_theta_o)
     hi = jnp.maximum(cos_theta_i, cos_theta_o)
     # G = 2 zm lo / h when that is < 1; then G / (4 zi zo) = zm / (2 h hi).
@@ -161,12 +191,20 @@ class Microfacet(AbstractBRDF):
 
 
 def lambert_ggx(rho_d: ArrayLike, f0: ArrayLike, alpha: ArrayLike) -> Sum:
-    """The foundation model (the form Kang et al. 2018 fit):
-    f_r = rho_d / pi + D_GGX F_Schlick(f0) G_smith / (4 cos_i cos_o).
+    """The foundation model f_r = rho_d / pi + D_GGX F_Schlick(f0) G_smith / (4 cos_i cos_o).
 
-    ``rho_d`` [*batch, 3] diffuse albedo, ``f0`` [*batch, 1] specular albedo
-    (Schlick reflectance at normal incidence), ``alpha`` [*batch, 1] isotropic GGX
-    roughness. Fittable names: ``terms.0.albedo``, ``terms.1.fresnel.f0``,
-    ``terms.1.distribution.alpha_x``.
+    Fittable names: ``terms.0.albedo``, ``terms.1.fresnel.f0``, ``terms.1.distribution.alpha_x``.
+
+    Args:
+        rho_d: diffuse albedo [*batch, 3].
+        f0: specular albedo [*batch, 1] (Schlick reflectance at normal incidence).
+        alpha: isotropic GGX roughness [*batch, 1].
+
+    Returns:
+        A ``Sum`` of ``Lambert`` and a GGX ``Microfacet`` with Schlick Fresnel and separable Smith masking.
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder" (the form it fits);
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 20 and 33-34.
     """
     return Sum(Lambert(rho_d), Microfacet(GGX(alpha), SchlickFresnel(f0), "smith"))

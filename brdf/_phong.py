@@ -24,18 +24,25 @@ def blinn_phong_lobe(
     exponent: Float[ArrayLike, "*#shape"],
     normalized: bool = True,
 ) -> Float[Array, "*shape"]:
-    """The Blinn-Phong specular lobe (Blinn 1977, "Models of light reflection
-    for computer synthesized pictures"), in 1/sr:
+    """The Blinn-Phong specular lobe in 1/sr, rho_s (exponent + 8) / (8 pi) cos(theta_h)^exponent.
 
-        normalized:    rho_s (exponent + 8) / (8 pi) cos(theta_h)^exponent
-        unnormalized:  rho_s cos(theta_h)^exponent
+    The (exponent + 8) / (8 pi) factor is the usual approximate energy normalisation: the lobe's albedo stays close
+    to rho_s. No horizon mask: the caller zeroes below-horizon wi, wo. Elementwise (any layout: [*batch, 1] cosines
+    with [*batch, C] parameters, or [N] rows).
 
-    ``cos_theta_h`` = n.h with h = normalize(wi + wo); 0 where it is <= 0 (finite
-    gradients there, also in the exponent). The (exponent + 8) / (8 pi) factor is
-    the usual approximate energy normalisation (Akenine-Moller & Haines, Real-Time
-    Rendering, 2nd ed., sec. 7.6): the lobe's albedo stays close to rho_s. No
-    horizon mask: the caller zeroes below-horizon wi, wo. Elementwise (any
-    layout: [*batch, 1] cosines with [*batch, C] parameters, or [N] rows).
+    Args:
+        cos_theta_h: n . h with h = normalize(wi + wo).
+        rho_s: specular albedo.
+        exponent: the Phong exponent (>= 0).
+        normalized: with the (exponent + 8) / (8 pi) factor; False: rho_s cos(theta_h)^exponent.
+
+    Returns:
+        The lobe in 1/sr, the broadcast shape; 0 where cos_theta_h <= 0 (finite gradients there, also in the
+        exponent).
+
+    References:
+        Blinn 1977, "Models of light reflection for computer synthesized pictures"; the normalisation from
+        Akenine-Moller & Haines, Real-Time Rendering, 2nd ed., sec. 7.6.
     """
     lobe = safe_pow(cos_theta_h, exponent)
     if normalized:
@@ -44,21 +51,39 @@ def blinn_phong_lobe(
 
 
 def phong_exponent(alpha: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
-    """Blinn-Phong exponent with the same lobe width as a microfacet roughness
-    alpha: s = max(2 / alpha^2 - 2, 0) (Walter et al. 2007, sec. 5.2, the
-    Beckmann-Phong correspondence). Unitless; 0 for alpha >= 1. ``alpha`` is
-    clamped to ALPHA_MIN (gradient 0 below), so s <= 2e8 and stays finite in
-    float32. Inverse: :func:`alpha_from_phong_exponent`."""
+    """The Blinn-Phong exponent s = max(2 / alpha^2 - 2, 0) with the same lobe width as microfacet roughness alpha.
+
+    ``alpha`` is clamped to ALPHA_MIN (gradient 0 below), so s <= 2e8 and stays finite in float32. Inverse:
+    ``alpha_from_phong_exponent``.
+
+    Args:
+        alpha: microfacet roughness.
+
+    Returns:
+        The exponent (unitless), the shape of ``alpha``; 0 for alpha >= 1.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.2 (the
+        Beckmann-Phong correspondence).
+    """
     alpha = jnp.maximum(jnp.asarray(alpha), ALPHA_MIN)
     return jnp.maximum(2.0 / (alpha * alpha) - 2.0, 0.0)
 
 
 def alpha_from_phong_exponent(exponent: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
-    """The microfacet roughness alpha = sqrt(2 / (exponent + 2)) whose
-    :func:`phong_exponent` is ``exponent`` (Walter et al. 2007, sec. 5.2); the
-    inverse of :func:`phong_exponent` for alpha in [ALPHA_MIN, 1], i.e.
-    exponent in [0, 2 / ALPHA_MIN^2 - 2]. Unitless; 0 (finite gradient) for
-    exponent <= -2."""
+    """The microfacet roughness alpha = sqrt(2 / (exponent + 2)) whose ``phong_exponent`` is ``exponent``.
+
+    The inverse of ``phong_exponent`` for alpha in [ALPHA_MIN, 1], i.e. exponent in [0, 2 / ALPHA_MIN^2 - 2].
+
+    Args:
+        exponent: the Phong exponent.
+
+    Returns:
+        alpha (unitless), the shape of ``exponent``; 0 (finite gradient) for exponent <= -2.
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", sec. 5.2.
+    """
     return safe_sqrt(safe_div(2.0, jnp.maximum(jnp.asarray(exponent) + 2.0, 0.0)))
 
 

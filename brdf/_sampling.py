@@ -14,8 +14,17 @@ from ._safe import safe_div, safe_sqrt
 
 
 def sample_concentric_disk(u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 2"]:
-    """Uniform point on the unit disk from two uniforms in [0, 1), by Shirley &
-    Chiu 1997's concentric map (area preserving, low distortion; pbrt-v4 §A.5.1)."""
+    """A uniform point on the unit disk from two uniforms, by the concentric map (area preserving, low distortion).
+
+    Args:
+        u: uniforms in [0, 1), [*batch, 2].
+
+    Returns:
+        Points [*batch, 2] on the unit disk.
+
+    References:
+        Shirley & Chiu 1997, "A low distortion map between disk and square"; pbrt-v4, sec. A.5.1.
+    """
     a = 2.0 * u[..., 0:1] - 1.0
     b = 2.0 * u[..., 1:2] - 1.0
     first = jnp.abs(a) > jnp.abs(b)
@@ -26,20 +35,45 @@ def sample_concentric_disk(u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 
 
 
 def sample_cosine_hemisphere(u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
-    """Direction with density cos(theta)/pi over the upper hemisphere (Malley's
-    method: a uniform disk point lifted to the hemisphere; pbrt-v4 §A.5.3)."""
+    """A direction with density cos(theta) / pi over the upper hemisphere (Malley's method).
+
+    A uniform disk point lifted to the hemisphere.
+
+    Args:
+        u: uniforms in [0, 1), [*batch, 2].
+
+    Returns:
+        Unit directions [*batch, 3] with z >= 0.
+
+    References:
+        pbrt-v4, sec. A.5.3.
+    """
     d = sample_concentric_disk(u)
     z = safe_sqrt(1.0 - d[..., 0:1] ** 2 - d[..., 1:2] ** 2)
     return jnp.concatenate([d, z], axis=-1)
 
 
 def pdf_cosine_hemisphere(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 1"]:
-    """cos(theta)/pi in 1/sr above the horizon, 0 below."""
+    """The density cos(theta) / pi of ``sample_cosine_hemisphere``.
+
+    Args:
+        w: unit directions [*batch, 3].
+
+    Returns:
+        The density in 1/sr, [*batch, 1]; 0 below the horizon.
+    """
     return jnp.maximum(cos_theta(w), 0.0) / jnp.pi
 
 
 def sample_uniform_hemisphere(u: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
-    """Direction with density 1/(2 pi) over the upper hemisphere (z = u0)."""
+    """A direction with density 1 / (2 pi) over the upper hemisphere (z = u0).
+
+    Args:
+        u: uniforms in [0, 1), [*batch, 2].
+
+    Returns:
+        Unit directions [*batch, 3] with z >= 0.
+    """
     z = u[..., 0:1]
     r = safe_sqrt(1.0 - z * z)
     phi = 2.0 * jnp.pi * u[..., 1:2]
@@ -47,7 +81,14 @@ def sample_uniform_hemisphere(u: Float[Array, "*batch 2"]) -> Float[Array, "*bat
 
 
 def pdf_uniform_hemisphere(w: Float[Array, "*batch 3"]) -> Float[Array, "*batch 1"]:
-    """1/(2 pi) in 1/sr above the horizon, 0 below."""
+    """The density 1 / (2 pi) of ``sample_uniform_hemisphere``.
+
+    Args:
+        w: unit directions [*batch, 3].
+
+    Returns:
+        The density in 1/sr, [*batch, 1]; 0 below the horizon.
+    """
     return jnp.where(cos_theta(w) > 0, 1.0 / (2.0 * jnp.pi), 0.0)
 
 
