@@ -39,13 +39,21 @@ def incident_light(
     near_field: bool,
     points: Float[ArrayLike, "*batch 3"],
 ) -> tuple[Float[Array, "light *batch 3"], Float[Array, "light *batch channel"]]:
-    """World direction toward each light and the irradiance at normal incidence
-    it delivers at each point.
+    """World direction toward each light and the irradiance at normal incidence it delivers at each point.
 
-    Near field: an isotropic point source of radiant intensity I [W sr^-1] at
-    ``position`` (mm) gives E = I / |x - p|^2 (inverse-square law). Distant:
-    ``position`` is along the direction and ``intensity`` is the irradiance E
-    itself, the same at every point."""
+    Near field: an isotropic point source of radiant intensity I [W sr^-1] at ``position`` (mm) gives
+    E = I / |x - p|^2 (inverse-square law). Distant: ``position`` is along the direction and ``intensity`` is the
+    irradiance E itself, the same at every point.
+
+    Args:
+        position: light positions (mm) or directions, [L, 3].
+        intensity: radiant intensity (near field) or irradiance (distant), [L, C].
+        near_field: point sources (True) or distant lights (False).
+        points: the shaded points (mm), [*batch, 3].
+
+    Returns:
+        (unit directions toward the lights [L, *batch, 3], irradiance at normal incidence [L, *batch, C]).
+    """
     points = jnp.asarray(points)
     extra = (1,) * (points.ndim - 1)
     pos = position.reshape((-1,) + extra + (3,))
@@ -66,8 +74,15 @@ def to_local(
     bitangent: Float[Array, "sample 3"],
     normal: Float[Array, "sample 3"],
 ) -> Float[Array, "*batch sample 3"]:
-    """World directions to each sample's shading frame (z = normal): the
-    components along (t, b, n); leading axes of ``w`` broadcast."""
+    """World directions in each sample's shading frame (z = normal): the components along (t, b, n).
+
+    Args:
+        w: world directions [*batch, P, 3]; leading axes broadcast.
+        tangent, bitangent, normal: each sample's orthonormal frame, [P, 3].
+
+    Returns:
+        Local directions [*batch, P, 3].
+    """
     w = jnp.asarray(w)
     lead = (1,) * (w.ndim - 2)
     t, b, n = (x.reshape(lead + x.shape) for x in (tangent, bitangent, normal))
@@ -81,11 +96,20 @@ def reflected_radiance(
     irradiance: Float[Array, "*#batch channel"],
     visible: Bool[Array, " *#batch"] | None = None,
 ) -> Float[Array, "*batch channel"]:
-    """L_r = f_r(wi, wo) max(cos theta_i, 0) E V for one light per element
-    (pbrt-v4 eq. 4.14, delta light): ``material`` a brdf Module (parameters
-    broadcast against the batch), wi, wo in the local frame, ``irradiance`` at
-    normal incidence, ``visible`` (optional) the light's visibility. Radiance
-    in the irradiance's units per sr."""
+    """Reflected radiance L_r = f_r(wi, wo) max(cos theta_i, 0) E V for one light per element.
+
+    Args:
+        material: a brdf Module (its parameters broadcast against the batch).
+        wi, wo: incident and outgoing unit directions in the local frame, [*batch, 3].
+        irradiance: irradiance at normal incidence, [*batch, C].
+        visible: the light's visibility, [*batch] (None: visible).
+
+    Returns:
+        Radiance [*batch, C], in the irradiance's units per sr.
+
+    References:
+        pbrt-v4, eq. 4.14 (a delta light).
+    """
     f = material(wi, wo)
     out = f * jnp.maximum(wi[..., 2:3], 0.0) * irradiance
     if visible is not None:
@@ -94,9 +118,21 @@ def reflected_radiance(
 
 
 def reflected_radiance_lights(material, wi, wo, irradiance, visible=None):
-    """``reflected_radiance`` for a leading light axis: wi [L, P, 3], wo [P, 3],
-    irradiance [L, P, C], visible [L, P] -> [L, P, C] (one light at a time, so
-    the temporaries are one light's)."""
+    """``reflected_radiance`` over a leading light axis, one light at a time (the temporaries are one light's).
+
+    Args:
+        material: a brdf Module.
+        wi: incident directions [L, P, 3] in the local frame.
+        wo: outgoing directions [P, 3] in the local frame.
+        irradiance: irradiance at normal incidence [L, P, C].
+        visible: visibility [L, P] (None: visible).
+
+    Returns:
+        Radiance [L, P, C].
+
+    References:
+        pbrt-v4, eq. 4.14 (a delta light).
+    """
     if visible is None:
         return jax.vmap(lambda w, e: reflected_radiance(material, w, wo, e))(wi, irradiance)
     return jax.vmap(lambda w, e, v: reflected_radiance(material, w, wo, e, v))(wi, irradiance, visible)
@@ -108,8 +144,20 @@ def subsurface_irradiance(
     eta,
     lit: Bool[Array, " *#batch"] | None = None,
 ) -> Float[Array, "*batch channel"]:
-    """Irradiance transmitted into the medium, F_t(eta, cos_i) max(cos_i, 0) E V
-    (the inner factor of Jensen et al. 2001 eq. 5); ``lit`` the visibility."""
+    """Irradiance transmitted into the medium, F_t(eta, cos_i) max(cos_i, 0) E V.
+
+    Args:
+        wi: incident unit directions in the local frame, [*batch, 3].
+        irradiance: irradiance at normal incidence, [*batch, C].
+        eta: relative refractive index of the medium.
+        lit: the light's visibility, [*batch] (None: visible).
+
+    Returns:
+        Transmitted irradiance [*batch, C].
+
+    References:
+        Jensen et al. 2001, "A practical model for subsurface light transport", eq. 5 (its inner factor).
+    """
     cos_i = jnp.maximum(wi[..., 2:3], 0.0)
     e = brdf.fresnel_transmittance(cos_i, eta) * cos_i * irradiance
     if lit is not None:
@@ -123,8 +171,20 @@ def subsurface_exitance(
     eta,
     seen: Bool[Array, " *#batch"] | None = None,
 ) -> Float[Array, "*batch channel"]:
-    """Radiance leaving toward wo from the diffused exitance M = operator(E_t):
-    F_t(eta, cos_o) / pi * M (the outer factor of Jensen et al. 2001 eq. 5)."""
+    """Radiance leaving toward wo from the diffused exitance M: F_t(eta, cos_o) / pi * M.
+
+    Args:
+        exitance: the diffused exitance M = operator(E_t), [*batch, C].
+        wo: outgoing unit directions in the local frame, [*batch, 3].
+        eta: relative refractive index of the medium.
+        seen: the sample's visibility from the camera, [*batch] (None: seen).
+
+    Returns:
+        Radiance [*batch, C].
+
+    References:
+        Jensen et al. 2001, "A practical model for subsurface light transport", eq. 5 (its outer factor).
+    """
     out = brdf.fresnel_transmittance(jnp.maximum(wo[..., 2:3], 0.0), eta) / jnp.pi * exitance
     if seen is not None:
         out = jnp.where(seen[..., None], out, 0.0)

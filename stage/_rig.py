@@ -35,10 +35,16 @@ _COINCIDENT_RAD = 1e-6
 
 
 def voronoi_solid_angles(directions: np.ndarray) -> np.ndarray:
-    """Solid angle [sr] of each direction's spherical Voronoi cell (sums to 4 pi).
+    """Solid angle of each direction's spherical Voronoi cell (scipy's SphericalVoronoi on the unit sphere).
 
-    directions: [L, 3] unit vectors. Uses scipy's SphericalVoronoi (Caroli et al.
-    2009) on the unit sphere.
+    Args:
+        directions: unit vectors [L, 3].
+
+    Returns:
+        Solid angles in sr, [L]; they sum to 4 pi.
+
+    References:
+        Caroli et al. 2009, "Robust and efficient Delaunay triangulations of points on or close to a sphere".
     """
     d = np.asarray(directions, dtype=np.float64)
     if d.ndim != 2 or d.shape[1] != 3:
@@ -136,13 +142,21 @@ class Rig(eqx.Module):
 
 
 def make_rig(position, intensity=1.0, near_field: bool = True, channels: int = 3, calibration=None) -> Rig:
-    """A rig from light positions [L, 3] (mm; directions for distant lights) with
-    Voronoi solid angles; ``intensity`` is a scalar, [L] or [L, C].
+    """A rig from light positions, with each light's Voronoi solid angle.
 
-    ``calibration`` (optional, scalar, [C] or [L, C], unitless) multiplies the
-    intensities: the per-light RGB calibration a light stage measures with a
-    colour chart or a white sphere (see ``calibrate``). Raises ValueError on no
-    lights, a light at the centre, coincident lights, or negative values.
+    Args:
+        position: light positions [L, 3] (mm; directions for distant lights).
+        intensity: radiant intensity (near field) or irradiance (distant): a scalar, [L] or [L, C].
+        near_field: point sources (True) or distant lights (False).
+        channels: colour channels C.
+        calibration: optional unitless gains (scalar, [C] or [L, C]) multiplying the intensities: the per-light RGB
+            calibration a light stage measures with a colour chart or a white sphere (see ``calibrate``).
+
+    Returns:
+        The ``Rig``.
+
+    Raises:
+        ValueError: no lights, a light at the centre, coincident lights, or negative values.
     """
     pos = np.asarray(position, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[1] != 3:
@@ -211,9 +225,15 @@ def geodesic_dome(subdivisions: int = 2, radius_mm: float = 1000.0, near_field: 
                   irradiance: float = 1.0) -> Rig:
     """Lights at the vertices of a subdivided icosahedron (10 * 4^s + 2 lights).
 
-    Distant lights by default, each delivering ``irradiance`` at normal
-    incidence; with ``near_field`` they are point sources at ``radius_mm`` whose
-    intensity gives that irradiance at the centre.
+    Args:
+        subdivisions: s, the icosahedron's subdivision level (0: 12 lights, 1: 42, 2: 162, 3: 642).
+        radius_mm: the dome's radius (mm), for near-field lights.
+        near_field: point sources at ``radius_mm`` whose intensity gives ``irradiance`` at the centre (True), or
+            distant lights each delivering ``irradiance`` at normal incidence (False).
+        irradiance: irradiance at normal incidence at the centre.
+
+    Returns:
+        The ``Rig``.
     """
     if subdivisions < 0:
         raise ValueError(f"subdivisions must be >= 0, got {subdivisions}")
@@ -233,13 +253,18 @@ def _lsx_table() -> dict:
 
 
 def light_stage_x(ordering: str = "all", intensity: float | None = None) -> Rig:
-    """The ICT Light Stage X: 346 near-field lights, radius ~1.32 m (bundled table;
-    positions transcribed from dreamworksanimation/moonray, Apache-2.0).
+    """The ICT Light Stage X: 346 near-field lights, radius ~1.32 m (bundled table).
 
-    ordering: "all" (346 lights in table order), "polarized" (85) or
-    "unpolarized" (201), the stage's own one-light-at-a-time orderings.
-    intensity: radiant intensity of every light; by default the value that gives
-    irradiance 1 at the centre from a light at the mean radius.
+    Positions transcribed from dreamworksanimation/moonray (Apache-2.0).
+
+    Args:
+        ordering: ``"all"`` (346 lights in table order), ``"polarized"`` (85) or ``"unpolarized"`` (201), the
+            stage's own one-light-at-a-time orderings.
+        intensity: radiant intensity of every light; None: the value that gives irradiance 1 at the centre from a
+            light at the mean radius.
+
+    Returns:
+        The ``Rig``.
     """
     table = _lsx_table()
     pos_cm = np.asarray(table["positions_cm"], dtype=np.float64)
@@ -287,11 +312,16 @@ def _calibration_array(calibration, shape) -> np.ndarray:
 def calibrate(rig: Rig, gains) -> Rig:
     """The rig with each light's intensity multiplied by its RGB calibration gain.
 
-    ``gains``: scalar, [C] (one colour gain for every light) or [L, C]
-    (unitless). A light stage measures them by imaging a white diffuse target
-    (or a chrome/white sphere pair) under each light and dividing by the
-    nominal response; ``calibrate(rig, measured / nominal)`` reproduces the
-    calibrated rig. Geometry and solid angles are unchanged.
+    A light stage measures the gains by imaging a white diffuse target (or a chrome/white sphere pair) under each
+    light and dividing by the nominal response; ``calibrate(rig, measured / nominal)`` reproduces the calibrated
+    rig. Geometry and solid angles are unchanged.
+
+    Args:
+        rig: the nominal rig.
+        gains: unitless gains: a scalar, [C] (one colour gain for every light) or [L, C].
+
+    Returns:
+        The calibrated ``Rig``.
     """
     g = _calibration_array(gains, tuple(rig.intensity.shape))
     inten = np.asarray(rig.intensity, np.float64) * g
@@ -303,15 +333,25 @@ def calibrate(rig: Rig, gains) -> Rig:
 
 def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False, irradiance: float = 1.0,
                      hemisphere: bool = False) -> Rig:
-    """``n`` lights on a Fibonacci (golden-angle) spiral: the nearly uniform
-    point set of Gonzalez 2010 ("Measurement of areas on a sphere using
-    Fibonacci and latitude-longitude lattices"), z_k = 1 - (2k + 1)/n,
-    phi_k = 2 pi k / golden ratio, with the stage's y axis as the pole.
+    """``n`` lights on a Fibonacci (golden-angle) spiral, with the stage's y axis as the pole.
 
-    The directions are ``brdf.fibonacci_sphere(n, axis=1, hemisphere)``.
-    With ``hemisphere`` the points cover only the upper half (y > 0). Distant
-    lights delivering ``irradiance`` by default; with ``near_field``, point
-    sources at ``radius_mm`` (mm) giving that irradiance at the centre.
+    z_k = 1 - (2k + 1)/n, phi_k = 2 pi k / golden ratio: the directions are
+    ``brdf.fibonacci_sphere(n, axis=1, hemisphere)``.
+
+    Args:
+        n: the number of lights.
+        radius_mm: the sphere's radius (mm), for near-field lights.
+        near_field: point sources at ``radius_mm`` giving ``irradiance`` at the centre (True), or distant lights
+            delivering ``irradiance`` (False).
+        irradiance: irradiance at normal incidence at the centre.
+        hemisphere: cover only the upper half (y > 0).
+
+    Returns:
+        The ``Rig``.
+
+    References:
+        Gonzalez 2010, "Measurement of areas on a sphere using Fibonacci and latitude-longitude lattices",
+        Math. Geosci. 42.
     """
     n = int(n)
     if n < 4:
@@ -322,17 +362,26 @@ def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False
 
 
 def directional_rig(directions_path, intensities_path=None) -> Rig:
-    """A distant-light rig read from DiLiGenT-style text files (Shi et al. 2016,
-    "A Benchmark Dataset and Evaluation for Non-Lambertian and Uncalibrated
-    Photometric Stereo"): ``light_directions.txt`` holds one unit direction
-    "x y z" per line, in the camera frame x right, y up, z toward the camera —
-    the stage frame, so no conversion — and ``light_intensities.txt`` one RGB
-    intensity "r g b" per line (relative irradiance, unitless). Without the
-    intensities every light delivers irradiance 1.
+    """A distant-light rig read from DiLiGenT-style text files.
 
-    Raises ValueError naming the file when a row is malformed, the counts
-    disagree, a direction is not unit length (tolerance 1e-3) or two lights
-    coincide.
+    ``light_directions.txt`` holds one unit direction "x y z" per line, in the camera frame x right, y up, z toward
+    the camera (the stage frame, so no conversion); ``light_intensities.txt`` one RGB intensity "r g b" per line
+    (relative irradiance, unitless).
+
+    Args:
+        directions_path: the directions file.
+        intensities_path: the intensities file (None: every light delivers irradiance 1).
+
+    Returns:
+        The ``Rig``.
+
+    Raises:
+        ValueError: naming the file, when a row is malformed, the counts disagree, a direction is not unit length
+            (tolerance 1e-3) or two lights coincide.
+
+    References:
+        Shi et al. 2016, "A benchmark dataset and evaluation for non-Lambertian and uncalibrated photometric
+        stereo".
     """
     d = read_light_table(directions_path, "light directions")
     norm = np.linalg.norm(d, axis=1)
