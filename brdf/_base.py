@@ -53,7 +53,15 @@ class ParamSpec(eqx.Module):
 
 
 def from_unconstrained(spec: ParamSpec, u: ArrayLike) -> Array:
-    """Physical value x of a parameter from its unconstrained value u (see ParamSpec)."""
+    """The physical value x of a parameter from its unconstrained value u (see ``ParamSpec``).
+
+    Args:
+        spec: the parameter's bounds and transform.
+        u: the unconstrained value.
+
+    Returns:
+        x, the shape of ``u``.
+    """
     u = jnp.asarray(u)
     if spec.transform == "identity":
         return u
@@ -65,11 +73,17 @@ def from_unconstrained(spec: ParamSpec, u: ArrayLike) -> Array:
 
 
 def to_unconstrained(spec: ParamSpec, x: ArrayLike) -> Array:
-    """Unconstrained value u of a physical value x: the inverse of from_unconstrained.
+    """The unconstrained value u of a physical value x: the inverse of ``from_unconstrained``.
 
-    Values on or outside an open bound are first moved just inside it (by a
-    relative step of about 1e-6 of the range, or the dtype's resolution), so the
-    result is always finite.
+    Values on or outside an open bound are first moved just inside it (by a relative step of about 1e-6 of the
+    range, or the dtype's resolution), so the result is always finite.
+
+    Args:
+        spec: the parameter's bounds and transform.
+        x: the physical value.
+
+    Returns:
+        u, the shape of ``x``.
     """
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.floating):
@@ -131,8 +145,15 @@ def _resolve(obj, part: str):
 
 
 def get_params(model: eqx.Module, names=None) -> dict[str, Array]:
-    """Current values of a model's fittable parameters, ``name -> array``
-    (all of ``model.fittable()`` unless ``names`` is given)."""
+    """Current values of a model's fittable parameters.
+
+    Args:
+        model: a brdf model.
+        names: the parameter names (as in ``model.fittable()``); None: all of them.
+
+    Returns:
+        ``name -> array``.
+    """
     names = list(model.fittable()) if names is None else list(names)
     out = {}
     for name in names:
@@ -147,8 +168,15 @@ def get_params(model: eqx.Module, names=None) -> dict[str, Array]:
 
 
 def set_params(model: eqx.Module, values: dict[str, ArrayLike]):
-    """A copy of ``model`` with the named parameters replaced (names as in
-    ``fittable()``). Works on traced values: this is what the fitter calls."""
+    """A copy of ``model`` with the named parameters replaced; works on traced values (the fitter calls it).
+
+    Args:
+        model: a brdf model.
+        values: ``name -> array``, names as in ``model.fittable()``.
+
+    Returns:
+        The new model.
+    """
     if not values:
         return model
     names = list(values)
