@@ -147,7 +147,7 @@ def _markdown(rows, args, entries: int, size: int) -> str:
         "is Python, tracing and lowering (not cached: JAX keys its cache on the lowered program), reading the "
         "capture and writing the maps. The *other size* column counts the programs whose shapes follow the "
         "capture: the solver's do not (their sample count is the chunk, their observation count a bucket: "
-        "`relight.fitting._driver._obs_bucket`), the per-texel map assembly and the report's do.", ""]
+        "`relight.fitting._observations._obs_bucket`), the per-texel map assembly and the report's do.", ""]
     return "\n".join(lines)
 
 

@@ -100,12 +100,14 @@ def np_residual(u, obs, wi, wo, irr, floor, c):
 
 def packed_data(capture, surface, lay):
     """relight's per-sample observation arrays and its start u0 (through
-    relight.fitting._driver and relight.fitting._init)."""
-    from relight.fitting import _driver as _fit
+    relight.fitting._observations and relight.fitting._solvers)."""
+    from relight.fitting import _observations as _obs
+    from relight.fitting import _solvers as _fit
 
     n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
     n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
-    obs, w, wi, wo, irr, _ = _fit._observations(capture, surface, 0, surface.num_samples, n_keep, np.float32)
+    source = relight.io.capture_source(capture)
+    obs, w, wi, wo, irr, _ = _obs._observations(source, surface, 0, surface.num_samples, n_keep, np.float32)
     u0 = np.asarray(_fit._start_chunk(*(jnp.asarray(x) for x in (obs, w, wi, wo, irr)), lay))
     return obs, w, wi, wo, irr, u0
 
@@ -180,7 +182,8 @@ def main(argv=None):
                 for s in args.steps.split(",")]
     for solver, chunk, spr in settings:
         rounds = args.rounds or max(1, -(-60 // spr))
-        kw = dict(model="ggx", normals=True, chunk=chunk, steps_per_round=spr, rounds=rounds, solver=solver)
+        kw = dict(model="ggx", normals=True, solver=solver,
+                  options=relight.fitting.FitOptions(chunk=chunk, steps_per_round=spr, rounds=rounds))
         # Warm-up on chunk samples including the one with the most valid observations
         # (the packed observation count, hence every shape, is the full fit's): compiles.
         nv = np.asarray(cap.mask).sum(axis=(0, 1))

@@ -46,7 +46,8 @@ def child(args) -> None:
     assert len(jax.local_devices()) >= args.ndev, jax.local_devices()
     store = open_capture_store(args.store)
     surface = load_surface(Path(args.store).with_suffix(".npz"))
-    kw = dict(model=args.model, chunk=args.chunk, block=args.block, devices=args.ndev)
+    kw = dict(model=args.model,
+              options=relight.fitting.FitOptions(chunk=args.chunk, block=args.block, devices=args.ndev))
     times = []
     for _ in range(1 + args.repeat):
         t = time.perf_counter()

@@ -46,8 +46,9 @@ def child(args) -> None:
     surface = load_surface(Path(args.store).with_suffix(".npz"))
     t = time.perf_counter()
     tracemalloc.start()
-    f = relight.fit(store, surface, model=args.model, block=args.block, chunk=args.chunk, rounds=args.rounds,
-                    steps_per_round=args.steps)
+    f = relight.fit(store, surface, model=args.model,
+                    options=relight.fitting.FitOptions(block=args.block, chunk=args.chunk, rounds=args.rounds,
+                                                       steps_per_round=args.steps))
     traced = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert np.all(np.isfinite(np.asarray(f.rho_d)))

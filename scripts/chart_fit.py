@@ -103,8 +103,9 @@ def main(argv=None):
 
     rows = []
     for sv, model, normals in configs(args):
-        kw = dict(model=model, normals=normals, solver=sv, chunk=chunk, steps_per_round=args.steps_per_round,
-                  rounds=args.rounds)
+        kw = dict(model=model, normals=normals, solver=sv,
+                  options=relight.fitting.FitOptions(chunk=chunk, steps_per_round=args.steps_per_round,
+                                                     rounds=args.rounds))
         t0 = time.perf_counter()
         relight.fit(cap_sub, geo_sub, **kw)
         t_warm = time.perf_counter() - t0

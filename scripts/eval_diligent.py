@@ -98,7 +98,8 @@ def main(argv=None):
     err_base = angular_error_deg(n_base, gt)
     capture, surface = diligent_capture(d)
     t0 = time.perf_counter()
-    f = relight.fit(capture, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk, rounds=a.rounds)
+    f = relight.fit(capture, surface, model=a.model, normals=True, solver=a.solver,
+                    options=relight.fitting.FitOptions(chunk=a.chunk, rounds=a.rounds))
     t_fit = time.perf_counter() - t0
     err_fit = angular_error_deg(np.asarray(f.normal), gt)
 
@@ -108,7 +109,8 @@ def main(argv=None):
     valid = np.all(obs < 0.995, -1) & (d.light_directions[held, 2] > 0)[:, None]
     base_pred = predict_lambert(n_tr, alb_tr, d, held)
     cap_tr, _ = diligent_capture(d, lights=train)
-    f_tr = relight.fit(cap_tr, surface, model=a.model, normals=True, solver=a.solver, chunk=a.chunk, rounds=a.rounds)
+    f_tr = relight.fit(cap_tr, surface, model=a.model, normals=True, solver=a.solver,
+                       options=relight.fitting.FitOptions(chunk=a.chunk, rounds=a.rounds))
     cap_h, _ = diligent_capture(d, lights=held)
     fit_pred = predict_fit(f_tr, cap_h, surface)
     e_base, e_fit = rel_rms(base_pred, obs, valid), rel_rms(fit_pred, obs, valid)

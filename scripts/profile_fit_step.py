@@ -19,8 +19,8 @@ import numpy as np
 import optimistix as optx
 from _common import parser
 
-from relight.fitting import _driver as _fit
 from relight.fitting import _model as _fit_model
+from relight.fitting import _solvers as _fit
 from relight.fitting._lm import NormalLevenbergMarquardt
 from relight.fitting._model import GGX, Layout
 

@@ -52,7 +52,7 @@ def main(argv=None):
     cap = capture_of(true_surf, rig, cam, rho, f0, alpha, args.noise, seed=13)
     t0 = time.perf_counter()
     f = relight.fit(cap, geo, model="ggx", normals=True, solver=args.solver, loss=args.loss,
-                    steps_per_round=args.steps_per_round, rounds=args.rounds)
+                    options=relight.fitting.FitOptions(steps_per_round=args.steps_per_round, rounds=args.rounds))
     t = time.perf_counter() - t0
     er, ea, en = errors(f, rho, alpha, np.asarray(true_surf.normal))
     failed = np.asarray(f.failed)

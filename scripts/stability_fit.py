@@ -127,7 +127,8 @@ def main(argv=None):  # noqa: C901 (a linear script: parse, simulate, fit, tabul
             for (name, _, _), cap in zip(CONDITIONS, cl, strict=False):
                 t0 = time.perf_counter()
                 f = relight.fit(cap, start_surf, model="ggx", normals=True, solver=sv,
-                                steps_per_round=args.steps_per_round, rounds=args.rounds)
+                                options=relight.fitting.FitOptions(steps_per_round=args.steps_per_round,
+                                                                   rounds=args.rounds))
                 dt = time.perf_counter() - t0
                 assert_finite(f, f"{sv} L={L} {name}")
                 n_fits += 1

@@ -1,20 +1,16 @@
 """Fitting per-sample reflectance to captures with Optimistix: the driver
-(chunked, compiled once), the photometric-stereo start, the per-rung model and
+(``fit``; how it runs: ``FitOptions``), its result (``Fit``, result codes
+``RESULTS``), the solvers, the photometric-stereo start, the per-rung model and
 its structured Jacobian, the model ladder, the subsurface fit (per region
 or per texel, with its own ladder) and the fit to pattern captures
 (``fit_patterns``). See docs/fit.md."""
 
-from ._driver import ALPHA_FIT_MIN as ALPHA_FIT_MIN
-from ._driver import FAILED_NONFINITE as FAILED_NONFINITE
 from ._driver import LOSSES as LOSSES
-from ._driver import PARAM_NAMES as PARAM_NAMES
-from ._driver import SOLVERS as SOLVERS
-from ._driver import Fit as Fit
 from ._driver import fit as fit
-from ._driver import rig_alpha_floor as rig_alpha_floor
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
 from ._lm import NormalLevenbergMarquardt as NormalLevenbergMarquardt
+from ._options import FitOptions as FitOptions
 from ._parts import PartsFingerprintError as PartsFingerprintError
 from ._parts import PartsIncompleteError as PartsIncompleteError
 from ._parts import fit_parts as fit_parts
@@ -28,11 +24,21 @@ from ._report import read_truth as read_truth
 from ._report import report_markdown as report_markdown
 from ._report import subsurface_report as subsurface_report
 from ._report import truth_errors as truth_errors
+from ._result import ALPHA_FIT_MIN as ALPHA_FIT_MIN
+from ._result import MIN_OBSERVATIONS as MIN_OBSERVATIONS
+from ._result import PARAM_NAMES as PARAM_NAMES
+from ._result import RESULTS as RESULTS
+from ._result import Fit as Fit
+from ._result import result_code as result_code
+from ._result import result_message as result_message
+from ._result import rig_alpha_floor as rig_alpha_floor
 from ._resume import fit_resumable as fit_resumable
 from ._run import DILIGENT_MODEL as DILIGENT_MODEL
 from ._run import fit_diligent as fit_diligent
 from ._run import subsurface_step as subsurface_step
 from ._run import write_diligent_folder as write_diligent_folder
+from ._solvers import SOLVERS as SOLVERS
+from ._solvers import resolve_solver as resolve_solver
 from ._subsurface import fit_subsurface as fit_subsurface
 from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP
 from ._write import write_fit_folder as write_fit_folder

@@ -34,7 +34,9 @@ import skin_bssrdf
 import stage
 
 from ..materials._maps import SUBSURFACE
-from ._driver import Fit, fit
+from ._driver import fit
+from ._options import FitOptions, as_options
+from ._result import Fit
 from ._subsurface import default_radius_mm, fit_subsurface
 
 
@@ -91,23 +93,29 @@ def _everywhere(out: Fit, labels: np.ndarray, rho_fill) -> Fit:
 def fit_with_subsurface(capture: stage.Capture, surface: stage.Surface, *, model: str = "auto", normals: bool = True,
                         per: str = "auto", passes: int = 2, regions=None, eta: float = 1.4,
                         mfp_range=(0.05, 8.0), radius_mm: float | None = None, fit_options: dict | None = None,
-                        subsurface_options: dict | None = None, first: Fit | None = None, progress=None) -> Fit:
+                        subsurface_options: dict | None = None, first: Fit | None = None,
+                        options: FitOptions | None = None) -> Fit:
     """The BRDF ladder and the subsurface rung fitted by alternation (module
     docstring): ``relight.fit(model, normals)``, ``relight.fit_subsurface(per)``,
     then ``passes - 1`` rounds of (lobe refit on the capture minus the
     predicted subsurface radiance, subsurface refit). ``passes=1`` is the plain
     sequence. ``fit_options`` / ``subsurface_options``: further keywords of
-    the two fits. ``first``: a ``relight.fit`` of this capture already made
-    with these ``model`` / ``normals`` / options (step 1 is skipped). Returns
+    the two fits (``relight.fit``'s model choices: solver, loss, ...).
+    ``options``: how the BRDF fits run (``FitOptions``); its ``progress``
+    also reports the subsurface fits. ``first``: a ``relight.fit`` of this
+    capture already made with these ``model`` / ``normals`` / options (step 1
+    is skipped). Returns
     the final ``Fit`` (rho_d: the profile albedo on the subsurface rung, the
     local Lambert albedo elsewhere)."""
     if not (isinstance(passes, int) and passes >= 1):
         raise ValueError(f"fit_with_subsurface: passes must be an int >= 1, got {passes!r}")
     fo = dict(fit_options or {})
+    options = as_options(options)
+    progress = options.progress
     so = dict(subsurface_options or {})
     radius = default_radius_mm(mfp_range[1]) if radius_mm is None else float(radius_mm)
     if first is None:
-        first = fit(capture, surface, model=model, normals=normals, progress=progress, **fo)
+        first = fit(capture, surface, model=model, normals=normals, options=options, **fo)
     elif first.rho_d.shape[0] != surface.num_samples:
         raise ValueError(f"fit_with_subsurface: first has {first.rho_d.shape[0]} samples, the surface "
                          f"{surface.num_samples}")
@@ -116,7 +124,7 @@ def fit_with_subsurface(capture: stage.Capture, surface: stage.Surface, *, model
     frame = first.maps(surface).frame(surface)
     labels = np.zeros(surface.num_samples, np.int64) if regions is None else np.asarray(regions)
     if passes > 1:
-        diffuse_only = fit(capture, frame, model="lambert", normals=False, progress=progress, **fo)
+        diffuse_only = fit(capture, frame, model="lambert", normals=False, options=options, **fo)
     for _ in range(passes - 1):
         # The lobe must not depend on the ladder's choice for the diffuse term: predict subsurface
         # everywhere, the samples on no subsurface rung taking their region's (median) mean free path.
@@ -124,7 +132,7 @@ def fit_with_subsurface(capture: stage.Capture, surface: stage.Surface, *, model
                                    radius_mm=radius)
         rest = stage.Capture(capture.radiance - jnp.asarray(pred, capture.radiance.dtype), capture.mask, capture.rig,
                              capture.cameras, getattr(capture, "sensor", None))
-        lobe = fit(rest, frame, model=model, normals=False, progress=progress, **fo)
+        lobe = fit(rest, frame, model=model, normals=False, options=options, **fo)
         # The lobe's own diffuse albedo is what the predicted subsurface left over, not an albedo: every
         # sample starts from the first fit's (fit_subsurface solves the local rung's albedo again).
         result = np.where(np.asarray(first.result) != 0, np.asarray(first.result), np.asarray(lobe.result))

@@ -3,7 +3,7 @@ as parts of one result set, and merged back into a ``Fit``.
 
 A result set is a folder: ``manifest.json`` (the fingerprint of the inputs and
 settings, the block size and the blocks) and one ``part_<start>_<stop>.npz``
-per finished block, each written atomically (``brdf.atomic_write_bytes``) the
+per finished block, each written atomically (``relight.results.atomic_write_bytes``) the
 moment its block is fitted and stamped with the fingerprint. A reader accepts a
 part only under the manifest's fingerprint, so a set never mixes results of two
 different fits. Blocks go round-robin to processes (block b to process
@@ -28,13 +28,12 @@ import zipfile
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-import brdf
-
+from ..results import atomic_write_bytes, atomic_write_text
 from . import _driver as _d
-from ._driver import Fit
+from ._options import as_options
+from ._result import FIELDS, Fit, fit_from_arrays
 
 MANIFEST = "manifest.json"
 # Bumped when the layout of a part or of the manifest changes: an old set is then refused, not misread.
@@ -85,26 +84,19 @@ class _Plan:
 
     def __init__(self, capture, surface, block: int, fit_kw: dict):
         kw = dict(model="ggx", normals=False, solver="lm", loss="cauchy", cauchy=0.1, alpha_floor=None, holdout=5,
-                  chunk=64, steps_per_round=20, rounds=3, rtol=None, atol=None, progress=None, devices=None)
+                  options=None)
         unknown = set(fit_kw) - set(kw)
         if unknown:
             raise TypeError(f"fit_parts: unknown fit keyword(s) {sorted(unknown)} (on_block is fit_parts' own)")
         kw.update(fit_kw)
-        self.kind = _d._source_kind(capture)
-        V, L, P, C = (int(s) for s in capture.shape)
-        _d._check_fit_args(P, C, surface, kw["chunk"], kw["rounds"], kw["steps_per_round"], block, kw["progress"],
-                           None, kw["loss"], kw["cauchy"], kw["model"], kw["holdout"])
-        solver, self.solver_name = _d.resolve_solver(kw["solver"], kw["rtol"], kw["atol"])
-        self.rungs = _d._rungs(kw["model"])
-        self.rig, self.cameras = _d._rig_and_cameras(capture)
-        if len(self.cameras) != V:
-            raise ValueError(f"fit_parts: capture has {V} views but {len(self.cameras)} cameras")
-        self.floor = _d.rig_alpha_floor(self.rig) if kw["alpha_floor"] is None else float(kw["alpha_floor"])
-        if not 0 < self.floor < 1:
-            raise ValueError(f"fit_parts: alpha_floor must be in (0, 1), got {self.floor}")
-        devs = _d._fit_devices(kw["devices"])
-        self.P, self.block, self.kw = P, int(block), kw
-        self.dt = np.dtype(jnp.result_type(float))
+        options = as_options(kw.pop("options"))
+        self.fit = _d._plan(capture, surface, **kw, options=options, block=block, count=False, where="fit_parts")
+        self.options = options
+        source, P = self.fit.source, self.fit.P
+        V, L, _, C = (int(s) for s in source.shape)
+        self.rig, self.cameras, self.floor, self.solver_name = (self.fit.rig, self.fit.cameras, self.fit.floor,
+                                                                 self.fit.solver_name)
+        self.P, self.block, self.dt = P, self.fit.block, self.fit.dt
         # fit's counting pass, reading the radiance too to hash every block's data (dtype and shape
         # included): one more read of the capture, cheap next to fitting it (a few us against ~ms
         # per sample), and the only way a radiance change anywhere is seen by every process.
@@ -112,13 +104,15 @@ class _Plan:
         h.update(f"relight.fit_parts/{_FORMAT}/{(V, L, P, C)}".encode())
         self.n_valid = np.zeros(P, np.int64)
         for s, e in self.blocks():
-            rad, m = _d._read_samples(capture, self.kind, s, e)
+            rad, m = _d.read_block(source, s, e)
             self.n_valid[s:e] = np.sum(m, axis=(0, 1))
             _hash_leaves(h, (rad, m))
             del rad, m
-        self.n_keep, self.opts = _d._solve_plan(P, self.n_valid, kw["chunk"], devs, kw["rounds"],
-                                                kw["steps_per_round"], solver, kw["loss"], kw["cauchy"])
-        self.settings = _settings(kw, block, len(devs), self.dt)
+        self.fit.set_counts(self.n_valid)
+        # The settings that change the numbers, under the keys fit's keywords had before FitOptions.
+        flat = dict(kw, chunk=options.chunk, steps_per_round=options.steps_per_round, rounds=options.rounds,
+                    rtol=options.rtol, atol=options.atol)
+        self.settings = _settings(flat, self.block, self.fit.devices, self.dt)
         self.surface_hash = _surface_fingerprint(surface)
         _hash_leaves(h, (self.rig, self.cameras))
         h.update(self.surface_hash.encode())
@@ -164,7 +158,7 @@ def _read_part(path: Path, fingerprint: str) -> dict | None:
             part = {k: z[k] for k in z.files}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    if any(part.get(k) is None or part[k].shape != (e - s, *shape) for k, (shape, _) in _d._FIELDS.items()):
+    if any(part.get(k) is None or part[k].shape != (e - s, *shape) for k, (shape, _) in FIELDS.items()):
         return None
     return part
 
@@ -172,7 +166,7 @@ def _read_part(path: Path, fingerprint: str) -> dict | None:
 def _write_part(path: Path, arrays: dict, fingerprint: str, s: int, e: int) -> None:
     buf = io.BytesIO()
     np.savez(buf, fingerprint=np.str_(fingerprint), start=np.int64(s), stop=np.int64(e), **arrays)
-    brdf.atomic_write_bytes(path, lambda fh: fh.write(buf.getvalue()))
+    atomic_write_bytes(path, lambda fh: fh.write(buf.getvalue()))
 
 
 def _prepare(folder: Path, plan: _Plan, overwrite: bool) -> None:
@@ -193,7 +187,7 @@ def _prepare(folder: Path, plan: _Plan, overwrite: bool) -> None:
                 "to replace it, or use another folder")
     if old != plan.manifest():
         # Every process writes the same bytes, so concurrent writers cannot disagree.
-        brdf.atomic_write_text(folder / MANIFEST, json.dumps(plan.manifest(), indent=1, sort_keys=True))
+        atomic_write_text(folder / MANIFEST, json.dumps(plan.manifest(), indent=1, sort_keys=True))
     if overwrite:
         for path in folder.glob("part_*.npz"):
             if _read_part(path, plan.fingerprint) is None:
@@ -231,8 +225,8 @@ def fit_parts(capture, surface, folder, *, block: int = 4096, process_index: int
     plan = _Plan(capture, surface, block, fit_kw)
     _prepare(folder, plan, overwrite)
 
-    phases = _d._Phases(plan.kw["progress"])
-    chosen = dict.fromkeys(plan.rungs, 0)
+    phases = _d._Phases(plan.options.progress)
+    chosen = dict.fromkeys(plan.fit.rungs, 0)
     blocks = plan.blocks()
     for b, (s, e) in enumerate(blocks):
         if b % pc != pi:
@@ -240,9 +234,7 @@ def fit_parts(capture, surface, folder, *, block: int = 4096, process_index: int
         path = folder / _part_name(s, e)
         if path.exists() and _read_part(path, plan.fingerprint) is not None:
             continue  # resume: this fit's part is there
-        part = _d._fit_block(capture, plan.kind, plan.rig, plan.cameras, surface, s, e, plan.n_valid[s:e],
-                             plan.n_keep, plan.dt, plan.rungs, plan.kw["normals"], plan.floor, plan.kw["holdout"],
-                             plan.kw["chunk"], plan.opts, phases, chosen, last=e == plan.P)
+        part = _d._fit_block(plan.fit, surface, s, e, phases, chosen)
         _write_part(path, part, plan.fingerprint, s, e)
         if on_block is not None:
             on_block(s, e, part)
@@ -266,7 +258,7 @@ def merge_parts(folder, surface) -> Fit:
         raise ValueError(f"merge_parts: the set has {P} samples but the surface has {surface.num_samples}")
     dt = np.dtype(man["dtype"])
     kinds = {"f": dt, "i": np.int32, "o": np.float32}
-    out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in _d._FIELDS.items()}
+    out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in FIELDS.items()}
     missing, foreign = [], []
     for s, e in man["blocks"]:
         path = folder / _part_name(s, e)
@@ -288,4 +280,4 @@ def merge_parts(folder, surface) -> Fit:
     # The surface last: its hash is the one costly check, worth it only for a complete set.
     if _surface_fingerprint(surface) != man.get("surface"):
         raise PartsFingerprintError(f"{folder}: this set was fitted on another surface (same sample count)")
-    return _d.fit_from_arrays(out, dt, float(man["alpha_floor"]), man["solver"])
+    return fit_from_arrays(out, dt, float(man["alpha_floor"]), man["solver"])

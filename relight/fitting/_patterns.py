@@ -14,7 +14,7 @@ channel and view): the normal equations NormalLevenbergMarquardt solves are
 (W_eff J)^T (W_eff J). Everything else is the OLAT driver's: the solve and
 its accept test, the one-sigma uncertainties from J^T J, the rounds with
 straggler compaction, chunks of fixed shape (one compilation per rung), the
-flags and the ``Fit`` (``relight.fitting._driver``).
+flags and the ``Fit`` (``relight.fitting._driver``, ``_result``).
 
 The default start (``start=None``), per sample, from the pattern measurements
 alone:
@@ -48,22 +48,14 @@ from brdf import safe_div, safe_normalize
 from ..materials._maps import BLINN_PHONG, GGX_ANISO, MODELS, SUBSURFACE
 from . import _init as _fit_init
 from . import _model as _fit_model
-from ._driver import (
-    LOSSES,
-    Fit,
-    _assemble,
-    _chunk_size,
-    _chunks_of,
-    _obs_bucket,
-    _rows,
-    finish_block,
-    fit_from_arrays,
-    resolve_solver,
-    rig_alpha_floor,
-    run_rounds,
-    solve_one,
-)
+from ._devices import _chunk_size, _chunks_of, _fit_devices, _placer
+from ._driver import LOSSES, run_rounds
+from ._ladder import _assemble, finish_block
 from ._model import Layout, Params
+from ._observations import _obs_bucket
+from ._options import FitOptions, as_options
+from ._result import Fit, fit_from_arrays, rig_alpha_floor
+from ._solvers import resolve_solver, solve_one
 
 __all__ = ["MIN_PATTERN_OBSERVATIONS", "fit_patterns"]
 
@@ -250,7 +242,7 @@ def _block_arrays(pcapture, light_visibility, surface, W, lit_any, b0, b1, n_kee
     OLAT driver's ``_normalise``) and the measurement counts and units:
     (obs [n, V, K, C], m [n, V, K, C], weff [n, K, Lk], wi [n, Lk, 3],
     wo [n, V, 3], irr [n, Lk, C]), n_valid [n], unit [n]."""
-    sub = _rows(surface, np.arange(b0, b1))
+    sub = surface.take(np.arange(b0, b1))
     rig = pcapture.rig
     wi_world, irr = rig.incident(sub.position)  # [L, n, 3], [L, n, C]
     wi = np.swapaxes(np.asarray(sub.to_local(wi_world), np.float64), 0, 1)
@@ -281,8 +273,7 @@ def _block_arrays(pcapture, light_visibility, surface, W, lit_any, b0, b1, n_kee
     return arrays, sub, n_valid, unit
 
 
-def _check_args(pcapture, surface, light_visibility, model, loss, cauchy, chunk, rounds, steps_per_round,
-                progress) -> tuple[int, int, int, int]:
+def _check_args(pcapture, surface, light_visibility, model, loss, cauchy) -> tuple[int, int, int, int]:
     """fit_patterns' argument checks (ValueError / TypeError naming the argument); returns (V, K, P, C)."""
     for name in ("radiance", "valid", "patterns", "rig", "cameras", "mask"):
         if not hasattr(pcapture, name):
@@ -304,18 +295,12 @@ def _check_args(pcapture, surface, light_visibility, model, loss, cauchy, chunk,
         raise ValueError(f"fit_patterns: loss must be one of {LOSSES}, got {loss!r}")
     if loss == "cauchy" and not cauchy > 0:
         raise ValueError(f"fit_patterns: the Cauchy scale must be > 0, got {cauchy}")
-    if chunk < 1 or rounds < 1 or steps_per_round < 1:
-        raise ValueError("fit_patterns: chunk, rounds and steps_per_round must be >= 1")
-    if progress is not None and not callable(progress):
-        raise TypeError(f"fit_patterns: progress must be a callable progress(phase, done, total) or None, "
-                        f"got {progress!r}")
     return V, K, P, C
 
 
 def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: str = "ggx", normals: bool = False,
                  start=None, solver="lm", loss: str = "l2", cauchy: float = 0.1, alpha_floor: float | None = None,
-                 chunk: int = 64, steps_per_round: int = 20, rounds: int = 3, rtol: float | None = None,
-                 atol: float | None = None, block: int | None = None, progress=None) -> Fit:
+                 options: FitOptions | None = None) -> Fit:
     """Fit a reflectance model per sample to a pattern capture, by least
     squares on the pattern measurements themselves (module docstring): the
     prediction of pattern k is sum_l W[k, l] V_l(p) (the rung's one-light
@@ -335,13 +320,14 @@ def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: s
     {"rho_d": [P, 3], "rho_s": [P], "alpha": [P], optional "normal": [P, 3]
     (world space)}, e.g. a learned decoder's (ValueError naming ``start``
     for a wrong shape or a value out of range; a sample with a non-finite
-    entry gets the default start). ``solver``, ``rtol``, ``atol``, ``alpha_floor``, ``chunk``,
-    ``steps_per_round``, ``rounds``, ``progress`` (phase "fit <rung>") as
+    entry gets the default start). ``solver``, ``alpha_floor`` as
     :func:`fit`. ``loss``: "l2" (default: each measurement sums many lights,
     so a cast shadow or highlight the model misses is averaged in rather than
     an outlier) or "cauchy" (scale ``cauchy`` x the sample's RMS
-    measurement). ``block``: samples whose per-sample arrays are held at once
-    (default: what keeps the [block, K, L] pattern weights within 64 MiB).
+    measurement). ``options``: how the fit runs (``FitOptions``, as for
+    :func:`fit`; progress phase "fit <rung>"; ``block``: samples whose
+    per-sample arrays are held at once, default what keeps the [block, K, L]
+    pattern weights within 64 MiB, rounded up to whole chunks).
 
     Returns a :class:`Fit` as :func:`fit` does: ``residual`` the RMS of the
     pattern residual (the capture's units), ``observed`` the valid pattern
@@ -350,15 +336,15 @@ def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: s
     residual's J^T J (so a parameter the patterns do not constrain is inf,
     ``Fit.unidentified``), ``heldout`` 0.
     """
-    V, K, P, C = _check_args(pcapture, surface, light_visibility, model, loss, cauchy, chunk, rounds,
-                             steps_per_round, progress)
+    options = as_options(options)
+    V, K, P, C = _check_args(pcapture, surface, light_visibility, model, loss, cauchy)
     rig = pcapture.rig
     L = rig.num_lights
     stage.check_patterns(np.asarray(pcapture.patterns), L)
     W = np.asarray(pcapture.patterns, np.float64)
     if not isinstance(light_visibility, stage.PackedMask):
         light_visibility = np.asarray(light_visibility, bool)
-    solver, solver_name = resolve_solver(solver, rtol, atol)
+    solver, solver_name = resolve_solver(solver, options.rtol, options.atol)
     floor = rig_alpha_floor(rig) if alpha_floor is None else float(alpha_floor)
     if not 0 < floor < 1:
         raise ValueError(f"fit_patterns: alpha_floor must be in (0, 1), got {floor}")
@@ -368,20 +354,18 @@ def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: s
     # Optimistix's LM mixes its damping dtype with JAX's default float (as fit does).
     dt = np.dtype(jnp.result_type(float))
     lit_any = W.max(axis=0) > 0
-    size = _chunk_size(P, chunk)
+    devs = _fit_devices(options.devices)
+    size = -(-_chunk_size(P, options.chunk) // len(devs)) * len(devs)
     # One kept-light count for every chunk (the most any sample has, rounded up): one compilation.
     count_step = 1 << 14
     most = max(int(np.max(np.sum(_visibility_rows(light_visibility, s, min(s + count_step, P)) & lit_any[None],
                                  axis=1))) for s in range(0, P, count_step))
     n_keep = _obs_bucket(most)
-    if block is None:
-        block = max(size, _BLOCK_BYTES // max(K * n_keep * 8, 1))
-    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
-        raise ValueError(f"fit_patterns: block must be an int >= 1 (samples per block), got {block!r}")
+    block = max(size, _BLOCK_BYTES // max(K * n_keep * 8, 1)) if options.block is None else options.block
     block = -(-int(block) // size) * size
-    opts = dict(size=size, rounds=rounds, steps_per_round=steps_per_round, solver=solver, put=jnp.asarray,
-                cauchy=float(cauchy) if loss == "cauchy" else None)
-    bar = stage.Phase(progress, f"fit {MODELS[rung]}", P)
+    opts = dict(size=size, rounds=options.rounds, steps_per_round=options.steps_per_round, solver=solver,
+                put=_placer(devs), cauchy=float(cauchy) if loss == "cauchy" else None)
+    bar = stage.Phase(options.progress, f"fit {MODELS[rung]}", P)
     fields = None
     for b0 in range(0, P, block):
         b1 = min(b0 + block, P)
@@ -394,8 +378,8 @@ def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: s
                 u0[idx[:m_]] = np.asarray(_start_pattern_chunk(*(jnp.asarray(x[idx]) for x in arrays), lay))[:m_]
         r = run_rounds(arrays, np.arange(n), lay, u0,
                        lambda a: _start_pattern_chunk(*a, lay),
-                       lambda u, a: _solve_pattern_chunk(u, *a, lay=lay, solver=solver, max_steps=steps_per_round,
-                                                         cauchy=opts["cauchy"]),
+                       lambda u, a: _solve_pattern_chunk(u, *a, lay=lay, solver=solver,
+                                                         max_steps=options.steps_per_round, cauchy=opts["cauchy"]),
                        opts, bar)
         choice = np.full(n, rung, np.int32)
         out = _assemble({rung: (np.arange(n), r)}, choice, n, normals, floor, dt, sub, size)
@@ -404,4 +388,6 @@ def fit_patterns(pcapture, surface: stage.Surface, light_visibility, *, model: s
             fields = {k: np.zeros((P, *v.shape[1:]), v.dtype) for k, v in part.items()}
         for k, v in part.items():
             fields[k][b0:b1] = v
+        if options.on_block is not None:
+            options.on_block(b0, b1, part)
     return fit_from_arrays(fields, dt, floor, solver_name, min_observed=MIN_PATTERN_OBSERVATIONS)

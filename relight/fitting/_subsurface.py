@@ -36,8 +36,8 @@ import stage
 
 from ..materials._maps import SUBSURFACE, LadderBRDF
 from . import _subsurface_texel as _tx
-from ._driver import Fit
 from ._model import view_above_horizon
+from ._result import Fit
 
 _GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 

@@ -55,7 +55,8 @@ import optimistix as optx
 
 import skin_bssrdf
 
-from ._driver import Fit, _chunks_of
+from ._devices import _chunks_of
+from ._result import MAX_STEPS, RESULTS, Fit, result_code
 
 # Standard deviation (in ln mfp) of the prior pulling each texel's mean free
 # path toward its region's value. Its residual is s (ln mfp - ln mfp_region) /
@@ -82,7 +83,6 @@ _RTOL, _ATOL = 1e-6, 1e-9
 # Steps per round of the solver (stragglers go on in later rounds): Dogleg
 # converges in a median of 13 steps on the test sphere.
 _STEPS_PER_ROUND = 16
-_MAX_STEPS_CODE = int(optx.RESULTS.nonlinear_max_steps_reached._value)
 
 
 class TexelData(eqx.Module):
@@ -179,7 +179,8 @@ def solve_chunk(idx, Es, nb_index, nb_w, nb_r, rho, unit, a, ybar, c0, cnt, wl, 
         cost0 = jnp.sum(res(u0, None) ** 2)
         cost1 = jnp.sum(res(sol.value, None) ** 2)
         good = jnp.all(jnp.isfinite(sol.value)) & (cost1 <= cost0 * (1 + 1e-9) + 1e-30)
-        return (jnp.where(good, sol.value, u0), jnp.where(good, sol.result._value, 100),
+        return (jnp.where(good, sol.value, u0),
+                result_code(RESULTS.where(good, RESULTS.promote(sol.result), RESULTS.rejected)),
                 sol.stats["num_steps"])
 
     per_channel = jax.vmap(one, in_axes=(0, 0, None, None, None, 1, 1, None, None, 0, 0))
@@ -302,8 +303,8 @@ def fit_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wl, ln_m
             s = sel[:m]
             u[s], code[s], steps[s] = np.asarray(uu)[:m], np.asarray(cc)[:m], steps[s] + np.asarray(kk)[:m]
             if bar is not None:
-                bar.advance(int(np.sum(np.all(code[s] != _MAX_STEPS_CODE, axis=1))))
-        active = active[np.any(code[active] == _MAX_STEPS_CODE, axis=1)]
+                bar.advance(int(np.sum(np.all(code[s] != MAX_STEPS, axis=1))))
+        active = active[np.any(code[active] == MAX_STEPS, axis=1)]
         if len(active) == 0:
             break
     if bar is not None and len(active):

@@ -18,14 +18,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 import stage
 
 from ..materials._maps import MaterialMaps
-from ._capture import open_capture
+from ._capture import CaptureReader, open_capture
 from ._errors import ImageFormatError
 from ._store import is_capture_store, open_capture_store
 from ._texture_set import TextureSet, read_maps
@@ -141,9 +140,10 @@ class TexelCapture(NamedTuple):
 
 
 class SampleSubset:
-    """A capture source restricted to some of its samples, read lazily: what
-    :func:`relight.fit` streams from (``shape``, ``rig`` / ``cameras``,
-    ``read(samples=slice)``, ``read_mask(samples=slice)``).
+    """A capture source restricted to some of its samples, read lazily: a
+    ``relight.io.CaptureSource`` (``read`` / ``read_mask`` take all views and
+    lights and a slice of the subset's samples), what :func:`relight.fit`
+    streams from.
 
     ``source``: a capture store (``relight.io.open_capture_store``) or a
     capture folder (``relight.io.open_capture``); ``index``: the source's
@@ -163,7 +163,8 @@ class SampleSubset:
         self.source, self.index = source, idx
         self.shape = (V, L, int(idx.size), C)
         self.n_views, self.n_lights, self.n_samples, self.n_channels = self.shape
-        self._store = callable(getattr(source, "read_mask", None)) and callable(getattr(source, "read", None))
+        # A folder decodes each light image whole: read it once per image, not once per run.
+        self._store = not isinstance(source, CaptureReader)
         self._rig = self._cameras = None
 
     def __repr__(self) -> str:
@@ -224,14 +225,19 @@ class SampleSubset:
         lo, hi = int(idx[0]), int(idx[-1]) + 1
         for v in range(V):
             for light in range(L):
-                r, m = self.source.read_image(v, light, samples=slice(lo, hi))
-                rad[v, light] = r[idx - lo]
-                msk[v, light] = True if m is None else m[idx - lo]
+                r, m = self.source.read(views=v, lights=light, samples=slice(lo, hi))
+                rad[v, light] = r[0, 0, idx - lo]
+                msk[v, light] = m[0, 0, idx - lo]
         return rad, msk
 
-    def read_mask(self, samples=None) -> np.ndarray:
-        """The mask [V, L, n] of the selected samples; a store decodes no radiance."""
+    def read_mask(self, views=None, lights=None, samples=None) -> np.ndarray:
+        """The mask [V, L, n] of the selected samples (``views`` / ``lights`` must be None); a store
+        decodes no radiance, a folder without a valid channel reads no file."""
+        if views is not None or lights is not None:
+            raise ValueError("SampleSubset.read_mask: reads every view and light (views / lights must be None)")
         if not self._store:
+            if not self.source.has_valid:
+                return np.ones((*self.shape[:2], len(self._selected(samples))), bool)
             return self.read(samples=samples)[1]
         idx = self._selected(samples)
         V, L, _, _ = self.shape
@@ -301,14 +307,7 @@ def load_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
         raise ImageFormatError(f"{folder}: no valid observation on any texel of the mesh")
     capture = stage.Capture(radiance=jnp.asarray(rad[:, :, keep]), mask=jnp.asarray(valid[:, :, keep]), rig=rig,
                             cameras=cams)
-    return TexelCapture(capture, _rows(full, keep), mesh, dict(reader.metadata))
-
-
-def _rows(surface: stage.Surface, index) -> stage.Surface:
-    """``surface.subset(index)`` taken on the host (NumPy rows, then device arrays): the same arrays,
-    without a gather program compiled for each texel count."""
-    index = np.asarray(index)
-    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]), surface)
+    return TexelCapture(capture, full.take(keep), mesh, dict(reader.metadata))
 
 
 def _seen(reader, store: bool, idx: np.ndarray, progress) -> np.ndarray:
@@ -351,7 +350,7 @@ def open_texel_capture(folder: str | os.PathLike, progress: stage.Progress | Non
     keep = np.nonzero(_seen(reader, store, idx, progress))[0]
     if len(keep) == 0:
         raise ImageFormatError(f"{folder}: no valid observation on any texel of the mesh")
-    return TexelCapture(SampleSubset(reader, idx[keep]), _rows(full, keep), mesh, dict(reader.metadata))
+    return TexelCapture(SampleSubset(reader, idx[keep]), full.take(keep), mesh, dict(reader.metadata))
 
 
 class TexelMaps(NamedTuple):

@@ -10,7 +10,7 @@ import brdf
 import relight
 import skin_bssrdf
 import stage
-from relight.fitting import subsurface_radiance
+from relight.fitting import FitOptions, subsurface_radiance
 
 from ..scenes import uv_sphere
 
@@ -78,7 +78,8 @@ def test_alternation_keeps_a_right_answer_right(scene):
     kw = dict(model="ggx", normals=False, per="region", radius_mm=RADIUS, mfp_range=(0.05, 4.0))
     calls = []
     one = relight.fit_with_subsurface(cap, surface, passes=1, **kw)
-    two = relight.fit_with_subsurface(cap, surface, passes=2, progress=lambda *a: calls.append(a[0]), **kw)
+    two = relight.fit_with_subsurface(cap, surface, passes=2,
+                                     options=FitOptions(progress=lambda *a: calls.append(a[0])), **kw)
     for g in (one, two):
         assert abs(float(np.median(np.asarray(g.rho_s))) - F0) < 0.15 * F0
         err = np.abs(np.median(np.asarray(g.mfp), axis=0) - TRUE_MFP) / TRUE_MFP

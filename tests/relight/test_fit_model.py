@@ -131,20 +131,20 @@ def _surface(seed):
 def _fitted(lay, surface, seed):
     """Random unconstrained parameters u [P, size] and the Fit the driver
     assembles from them (fitted frame to world, per-rung maps)."""
-    from relight.fitting import _driver
+    from relight.fitting import _ladder, _result
 
     rng = np.random.default_rng(seed)
     u = rng.normal(size=(P_ONE, lay.size)) * 0.6
     if lay.normals:
         u[:, -2:] *= 0.4  # fitted normals within ~25 degrees of the surface's
-    k = len(_driver._union_index(lay))
+    k = len(_ladder._union_index(lay))
     r = dict(u=u, rms=np.zeros(P_ONE), hmse=np.zeros(P_ONE), code=np.zeros(P_ONE, np.int32),
              steps=np.zeros(P_ONE, np.int32), sigma=np.zeros((P_ONE, k)))
     model = np.full(P_ONE, lay.model, np.int32)
-    out = _driver._assemble({lay.model: (np.arange(P_ONE), r)}, model, P_ONE, lay.normals, lay.alpha_floor,
+    out = _ladder._assemble({lay.model: (np.arange(P_ONE), r)}, model, P_ONE, lay.normals, lay.alpha_floor,
                             np.dtype(np.float64), surface, 64)
     j = jnp.asarray
-    f = _driver.Fit(rho_d=j(out["rho_d"]), rho_s=j(out["rho_s"]), alpha=j(out["alpha"]), normal=j(out["normal"]),
+    f = _result.Fit(rho_d=j(out["rho_d"]), rho_s=j(out["rho_s"]), alpha=j(out["alpha"]), normal=j(out["normal"]),
                     tangent=j(out["tangent"]), model=j(model), residual=j(out["residual"]),
                     heldout=j(np.zeros(P_ONE)), result=j(out["result"]), steps=j(out["steps"]),
                     observed=j(np.full(P_ONE, 100.0)), uncertainty=j(out["uncertainty"]),

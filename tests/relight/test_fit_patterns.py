@@ -10,15 +10,15 @@ import pytest
 import brdf
 import relight
 import stage
+from relight.fitting import FitOptions, fit, fit_patterns
 from relight.fitting import _model as _fit_model
 from relight.fitting import _patterns as _fit_patterns
-from relight.fitting import fit, fit_patterns
 from relight.fitting._model import GGX, GGX_ANISO, LAMBERT, Layout
 
 from ..scenes import uv_sphere
 
 # Tight solver tolerances: noise-free recovery is then limited by float32 radiance, not the stopping rule.
-TIGHT = dict(rtol=1e-9, atol=1e-10)
+TIGHT = dict(options=FitOptions(rtol=1e-9, atol=1e-10))
 
 
 def _sphere(rig, every=4):
@@ -258,7 +258,8 @@ def test_two_views_and_progress():
     W = np.random.default_rng(5).uniform(0.0, 1.0, (12, rig.num_lights))
     pc = stage.simulate_patterns(surf, rig, cams, _ggx(rho, f0, alpha), lv, cv, W)
     calls = []
-    f = fit_patterns(pc, surf, lv, progress=lambda phase, done, total: calls.append((phase, done, total)), **TIGHT)
+    progress = lambda phase, done, total: calls.append((phase, done, total))  # noqa: E731
+    f = fit_patterns(pc, surf, lv, options=FitOptions(progress=progress, rtol=1e-9, atol=1e-10))
     both = np.asarray(pc.valid).all(axis=0)
     assert both.sum() >= 5 and (~both).sum() >= 5
     np.testing.assert_array_equal(np.asarray(f.observed), np.where(both, 24, 12))

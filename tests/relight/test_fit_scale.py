@@ -111,8 +111,9 @@ def test_ladder_and_heldout_are_unit_free(scene, k):
     sub = surface.subset(np.arange(n))
     rho, f0, alpha = (x[:n] for x in _truth(surface.num_samples, seed=4))
     cap = _noisy(stage.simulate(sub, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[:n], cv[:, :n]), 0.01, 5)
-    ref = relight.fit(cap, sub, model="auto", rounds=1)
-    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), sub, model="auto", rounds=1)
+    ref = relight.fit(cap, sub, model="auto", options=relight.fitting.FitOptions(rounds=1))
+    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), sub, model="auto",
+                        options=relight.fitting.FitOptions(rounds=1))
     np.testing.assert_array_equal(np.asarray(other.model), np.asarray(ref.model))
     # Tolerances as in test_other_units_give_the_same_maps (float32 inputs, solver rtol 1e-5).
     np.testing.assert_allclose(np.asarray(other.rho_d), np.asarray(ref.rho_d), rtol=1e-4)

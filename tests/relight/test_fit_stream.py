@@ -1,5 +1,5 @@
-"""relight.fit in blocks of samples (``block=``), from lazy capture sources, and
-sharded over several devices (``devices=``): the same fit whatever the block,
+"""relight.fit in blocks of samples (``FitOptions.block``), from lazy capture sources, and
+sharded over several devices (``FitOptions.devices``): the same fit whatever the block,
 source or device count; a working set set by the block, not the capture."""
 
 import json
@@ -15,6 +15,7 @@ import pytest
 
 import stage
 from relight import fit
+from relight.fitting import FitOptions
 
 from ..scenes import noisy_ggx_sphere as _scene  # (capture, surface); also imported by the subprocess below
 
@@ -52,12 +53,17 @@ def _assert_same_fit(a, b, rtol):
 FAST = dict(chunk=16, rounds=3, steps_per_round=6)
 
 
+def _fast(**kw) -> FitOptions:
+    """FAST's options and ``kw`` (block, devices, progress, on_block)."""
+    return FitOptions(**FAST, **kw)
+
+
 def test_one_block_whatever_its_size(scene):
     """block >= P is one block of every sample: identical fits for block = P and 10 P."""
     cap, surface = scene
     P = surface.num_samples
-    kw = dict(model="ggx", **FAST)
-    _assert_same_fit(fit(cap, surface, block=10 * P, **kw), fit(cap, surface, block=P, **kw), rtol=0.0)
+    _assert_same_fit(fit(cap, surface, model="ggx", options=_fast(block=10 * P)),
+                     fit(cap, surface, model="ggx", options=_fast(block=P)), rtol=0.0)
 
 
 def test_blocks_give_the_same_auto_fit(small_scene):
@@ -66,9 +72,9 @@ def test_blocks_give_the_same_auto_fit(small_scene):
     cap, surface = small_scene
     P = surface.num_samples
     events, blocks = [], []
-    whole = fit(cap, surface, model="auto", block=P, **FAST)
-    small = fit(cap, surface, model="auto", block=24, progress=lambda *e: events.append(e),
-                on_block=lambda s, e, arrays: blocks.append((s, e, arrays)), **FAST)
+    whole = fit(cap, surface, model="auto", options=_fast(block=P))
+    small = fit(cap, surface, model="auto", options=_fast(block=24, progress=lambda *e: events.append(e),
+                                                          on_block=lambda s, e, arrays: blocks.append((s, e, arrays))))
     assert len(np.unique(np.asarray(whole.model))) >= 2  # the ladder chose more than one rung
     _assert_same_fit(small, whole, rtol=1e-5)
     # on_block: consecutive blocks covering every sample once, holding the result's values.
@@ -103,8 +109,8 @@ def test_capture_store_is_read_a_block_at_a_time(scene, tmp_path):
         return read(views=views, lights=lights, samples=samples, dtype=dtype)
 
     store.read = spy
-    kw = dict(model="ggx", **FAST)
-    _assert_same_fit(fit(store, surface, block=32, **kw), fit(cap, surface, block=P, **kw), rtol=1e-5)
+    _assert_same_fit(fit(store, surface, model="ggx", options=_fast(block=32)),
+                     fit(cap, surface, model="ggx", options=_fast(block=P)), rtol=1e-5)
     assert spans and max(spans) <= 32
     assert sum(spans) == P  # the counting pass reads only the mask (CaptureStore.read_mask)
 
@@ -116,30 +122,29 @@ def test_capture_folder_reader_is_a_source(scene, tmp_path):
     cap, surface = scene
     write_capture(tmp_path / "cap", np.asarray(cap.radiance), cap.rig, list(cap.cameras),
                   valid=np.asarray(cap.mask))
-    kw = dict(model="lambert", **FAST)
-    _assert_same_fit(fit(open_capture(tmp_path / "cap"), surface, block=50, **kw), fit(cap, surface, **kw),
-                     rtol=1e-5)
+    _assert_same_fit(fit(open_capture(tmp_path / "cap"), surface, model="lambert", options=_fast(block=50)),
+                     fit(cap, surface, model="lambert", options=_fast()), rtol=1e-5)
 
 
 def test_bad_block_and_sources_are_refused(scene):
     cap, surface = scene
     for bad in (0, -3, True):
         with pytest.raises(ValueError, match="block"):
-            fit(cap, surface, block=bad)
+            FitOptions(block=bad)
     with pytest.raises(ValueError, match="devices"):
-        fit(cap, surface, devices=0)
+        fit(cap, surface, options=FitOptions(devices=0))
     with pytest.raises(TypeError, match="on_block"):
-        fit(cap, surface, on_block=3)
+        FitOptions(on_block=3)
     with pytest.raises(TypeError, match="capture"):
         fit(np.zeros((1, 42, surface.num_samples, 3)), surface)
 
 
-def _traced_peak(capture, surface, **kw):
+def _traced_peak(capture, surface, block, **kw):
     """tracemalloc's peak (bytes, NumPy and Python allocations) over one fit."""
     tracemalloc.start()
     try:
         tracemalloc.reset_peak()
-        fit(capture, surface, **kw)
+        fit(capture, surface, model="lambert", options=FitOptions(block=block, **kw))
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -155,8 +160,8 @@ def test_peak_memory_is_set_by_the_block(scene):
     idx = {n: np.resize(np.arange(surface.num_samples), n) for n in (B, 8 * B)}
     tiled = {n: (stage.Capture(cap.radiance[:, :, i], cap.mask[:, :, i], cap.rig, cap.cameras), surface.subset(i))
              for n, i in idx.items()}
-    kw = dict(model="lambert", rounds=1, steps_per_round=3, chunk=64)
-    fit(*tiled[B], block=B, **kw)  # compile outside the measurement
+    kw = dict(rounds=1, steps_per_round=3, chunk=64)
+    fit(*tiled[B], model="lambert", options=FitOptions(block=B, **kw))  # compile outside the measurement
     one = _traced_peak(*tiled[B], block=B, **kw)
     streamed = _traced_peak(*tiled[8 * B], block=B, **kw)
     upfront = _traced_peak(*tiled[8 * B], block=8 * B, **kw)
@@ -171,7 +176,7 @@ _SHARDED = textwrap.dedent("""
     import jax
     jax.config.update("jax_enable_x64", True)  # as tests/conftest.py (see the test's docstring)
     sys.path.insert(0, {root!r})
-    from tests.relight.test_fit_stream import FAST, FIELDS, _scene
+    from tests.relight.test_fit_stream import FIELDS, _fast, _scene
     from relight import fit
     from relight.fitting import _driver
 
@@ -185,11 +190,10 @@ _SHARDED = textwrap.dedent("""
         return solve(u0, obs, *args, **kw)
 
     _driver._solve_chunk = spy
-    kw = dict(model="ggx", block=40, **FAST)
-    many = fit(cap, surface, devices=None, **kw)
+    many = fit(cap, surface, model="ggx", options=_fast(block=40, devices=None))
     shards = seen[:]
     seen.clear()
-    one = fit(cap, surface, devices=1, **kw)
+    one = fit(cap, surface, model="ggx", options=_fast(block=40, devices=1))
     err = {{}}
     for k in FIELDS:
         x, y = np.asarray(getattr(many, k)), np.asarray(getattr(one, k))

@@ -59,12 +59,17 @@ def test_lazy_access_in_chunks(tmp_path, capture):
     write_capture(tmp_path / "cap", radiance, rig, cameras, valid=valid)
     reader = open_capture(tmp_path / "cap")
     assert reader.shape == radiance.shape
-    # Chunks of samples reassemble the stack; subsets select views/lights.
-    chunks = [reader.load(samples=slice(s, s + 10)).radiance for s in range(0, 24, 10)]
-    np.testing.assert_array_equal(np.concatenate(chunks, axis=2), radiance)
-    sub = reader.load(views=[1], lights=[3, 0])
-    np.testing.assert_array_equal(sub.radiance, radiance[1][[3, 0]][None])
-    np.testing.assert_array_equal(sub.rig["intensities"], rig["intensities"][[3, 0]])
+    # Chunks of samples reassemble the stack (CaptureSource.read); subsets select views/lights.
+    chunks = [reader.read(samples=slice(s, s + 10)) for s in range(0, 24, 10)]
+    np.testing.assert_array_equal(np.concatenate([r for r, _ in chunks], axis=2), radiance)
+    np.testing.assert_array_equal(np.concatenate([m for _, m in chunks], axis=2), valid)
+    np.testing.assert_array_equal(reader.read_mask(samples=slice(5, 20)), valid[:, :, 5:20])
+    sub, sub_mask = reader.read(views=[1], lights=[3, 0])
+    np.testing.assert_array_equal(sub, radiance[1][[3, 0]][None])
+    np.testing.assert_array_equal(sub_mask, valid[1][[3, 0]][None])
+    part = read_capture(tmp_path / "cap", views=[1], lights=[3, 0])
+    np.testing.assert_array_equal(part.radiance, radiance[1][[3, 0]][None])
+    np.testing.assert_array_equal(part.rig["intensities"], rig["intensities"][[3, 0]])
     # Streaming light by light relights with O(one image) memory.
     w = np.arange(1, 5, dtype=np.float64)[:, None] * np.ones((4, 3))
     acc = sum(w[l] * rad for l, rad, _ in reader.iter_lights(view=1))

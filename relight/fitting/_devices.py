@@ -1,0 +1,60 @@
+"""Where and in what shapes a fit runs: its devices, the placement of a chunk on them, and the
+fixed-shape chunks of samples (one compilation per rung whatever the capture's size).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _fit_devices(devices) -> list:
+    """The devices a fit runs on: None = every local device (``jax.local_devices()``),
+    an int n = the first n of them, or a sequence of devices. ValueError naming ``devices``."""
+    local = jax.local_devices()
+    if devices is None:
+        return list(local)
+    if isinstance(devices, (int, np.integer)) and not isinstance(devices, bool):
+        if not 1 <= int(devices) <= len(local):
+            raise ValueError(f"fit: devices must be between 1 and the {len(local)} local device(s), got {devices}")
+        return list(local[:int(devices)])
+    try:
+        devs = list(devices)
+    except TypeError:
+        raise ValueError(f"fit: devices must be None, an int or a sequence of jax devices, got {devices!r}") from None
+    if not devs or not all(isinstance(d, jax.Device) for d in devs) or len(set(devs)) != len(devs):
+        raise ValueError(f"fit: devices must be a non-empty sequence of distinct jax devices, got {devices!r}")
+    return devs
+
+
+def _placer(devs):
+    """``put(x)``: a NumPy chunk [n, ...] as a jax array on ``devs``. One device: that device (the
+    default device's is today's ``jnp.asarray``). Several: the sample axis split over a 1-D
+    ``Mesh(devs, ("samples",))`` (``NamedSharding(mesh, PartitionSpec("samples"))``, the rest
+    replicated), so the jitted vmapped solve runs data-parallel: no sample talks to another, and the
+    partitioner only adds an all-reduce for the batched while loop's "any sample still running"."""
+    if len(devs) == 1:
+        if devs[0] == jax.devices()[0]:
+            return jnp.asarray
+        return lambda x: jax.device_put(x, devs[0])
+    mesh = jax.sharding.Mesh(np.asarray(devs, dtype=object), ("samples",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("samples"))
+    return lambda x: jax.device_put(x, sharding)
+
+
+def _chunk_size(P: int, chunk: int) -> int:
+    """Samples per solver call: ``chunk``, or for fewer samples the next power of two."""
+    return chunk if P >= chunk else 1 << max(int(P - 1).bit_length(), 3)
+
+
+def _chunks_of(index, size):
+    """Chunks of ``index``, each padded (repeating its last entry) to ``size``:
+    one shape for every call of a fit (straggler rounds and ladder subsets
+    included), so the solver compiles once per rung."""
+    for s in range(0, len(index), size):
+        idx = index[s:s + size]
+        n = len(idx)
+        if n < size:
+            idx = np.concatenate([idx, np.full(size - n, idx[-1])])
+        yield idx, n

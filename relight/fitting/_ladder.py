@@ -1,0 +1,136 @@
+"""The model ladder: which rungs a fit tries, the held-out choice between them, and a block's
+per-sample result assembled from the rungs' solves.
+
+``model="auto"``: every rung is fitted on all but every ``holdout``-th light and scored on those; each
+sample keeps the simplest rung whose held-out mean squared error is within two standard errors of the
+noise of the best (:func:`choose_rungs`), then is refitted on every light.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, MODELS, SUBSURFACE
+from . import _model as _fit_model
+from ._devices import _chunks_of
+from ._model import Layout
+from ._result import FIELDS
+
+
+def _rungs(model) -> tuple[int, ...]:
+    if model == "auto":
+        return (LAMBERT, BLINN_PHONG, GGX, GGX_ANISO)
+    if model not in MODELS or model == "subsurface":
+        raise ValueError(f"fit: model must be 'auto' or one of {MODELS[:SUBSURFACE]} (subsurface: "
+                         f"relight.fit_subsurface after a fit), got {model!r}")
+    return (MODELS.index(model),)
+
+
+def heldout_weights(light, w, holdout: int):
+    """The held-out observations' weights [n, N, C]: every ``holdout``-th light (those with
+    ``light % holdout == holdout // 2``) of the valid observations ``w``."""
+    return (light % holdout == holdout // 2)[..., None].astype(w.dtype) * w
+
+
+def choose_rungs(trial: dict, rungs, hmask, dt):
+    """Each sample's rung from the held-out trials: (choice [n] int32, held-out RMS [n]).
+
+    ``trial[k]``: rung k's solve on the training lights (``hmse`` [n], its held-out MSE; ``rms``
+    [n], its training RMS); ``hmask``: :func:`heldout_weights`. The noise s^2 is the richest rung's
+    training MSE (the smallest); the held-out MSE of n_h Gaussian residuals has a standard error of
+    s^2 sqrt(2 / n_h), and a sample keeps the simplest rung within two of them of the best.
+    """
+    hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, n]
+    n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
+    best = np.min(hm, axis=0)
+    s2 = np.min(np.stack([trial[k]["rms"] ** 2 for k in rungs]), axis=0)
+    tol = 2.0 * s2 * np.sqrt(2.0 / n_h)
+    ok = hm <= (best + tol)[None]
+    pick = np.argmax(ok, axis=0)
+    choice = np.asarray(rungs, np.int32)[pick]
+    heldout = np.sqrt(hm[pick, np.arange(hm.shape[1])]).astype(dt)
+    return choice, heldout
+
+
+def finish_block(out, n_valid, block_surface, unit, heldout, choice, dt, min_observed: int) -> dict:
+    """A block's Fit fields (``FIELDS``) from :func:`_assemble`'s ``out``:
+    samples with fewer than ``min_observed`` valid observations get grey
+    defaults and every parameter of their rung unknown (sigma inf); NaN is
+    replaced (parameters 0, sigma inf, residual the largest float); the RMS
+    residual and held-out RMS are scaled back by ``unit`` [n] to the
+    capture's radiance units. Shared by :func:`fit` and
+    :func:`relight.fitting.fit_patterns`."""
+    nobs = n_valid.astype(np.float32)
+    empty = nobs < min_observed
+    # A sample with no usable data gets grey defaults instead of whatever the solver made of zeros.
+    out["rho_d"][empty] = 0.5
+    out["rho_s"][empty] = 0.04
+    out["alpha"][empty] = 0.3
+    out["normal"][empty] = np.asarray(block_surface.normal, dt)[empty]
+    out["tangent"][empty] = np.asarray(block_surface.tangent, dt)[empty]
+    # No usable data: every parameter the sample's rung has is unknown.
+    unc = out["uncertainty"]
+    unc[empty] = np.where((unc[empty] != 0) | (np.arange(9) < 3), np.inf, 0.0)
+    big = np.finfo(np.float32).max
+    for k in ("rho_d", "rho_s", "alpha"):
+        out[k] = np.nan_to_num(out[k], nan=0.0, posinf=0.0, neginf=0.0)
+    out["uncertainty"] = np.nan_to_num(unc, nan=np.inf, posinf=np.inf, neginf=np.inf)
+    # Residuals back in the capture's radiance units.
+    out["residual"] = np.nan_to_num(out["residual"] * unit.astype(dt), nan=big, posinf=big)
+    out["heldout"] = np.nan_to_num(heldout * unit.astype(dt))
+    out["model"] = choice
+    out["observed"] = nobs
+    return {k: out[k] for k in FIELDS}
+
+
+def _assemble(fits, choice, P, normals, floor, dt, surface, size):
+    out = dict(rho_d=np.zeros((P, 3), dt), rho_s=np.zeros((P, 1), dt), alpha=np.zeros((P, 2), dt),
+               normal=np.zeros((P, 3), dt), tangent=np.zeros((P, 3), dt), residual=np.zeros(P, dt),
+               result=np.zeros(P, np.int32), steps=np.zeros(P, np.int32), uncertainty=np.zeros((P, 9), dt))
+    T, B, N = (np.asarray(x, np.float64) for x in (surface.tangent, surface.bitangent, surface.normal))
+    for k, (sel, r) in fits.items():
+        lay = Layout(k, normals, floor)
+        p, R = _physical(r["u"], lay, size)
+        out["rho_d"][sel] = p["rho_d"]
+        out["rho_s"][sel] = p["rho_s"]
+        out["alpha"][sel] = p["alpha"]
+        # Fitted frame (surface-frame coordinates) to world space.
+        R = R.astype(np.float64)
+        t_l, n_l = R[:, 0], R[:, 2]
+        Ts, Bs, Ns = T[sel], B[sel], N[sel]
+        to_world = lambda v, Ts=Ts, Bs=Bs, Ns=Ns: v[:, 0:1] * Ts + v[:, 1:2] * Bs + v[:, 2:3] * Ns  # noqa: E731
+        out["normal"][sel] = to_world(n_l)
+        out["tangent"][sel] = to_world(t_l)
+        out["residual"][sel] = r["rms"]
+        out["result"][sel] = r["code"]
+        out["steps"][sel] = r["steps"]
+        out["uncertainty"][np.ix_(sel, _union_index(lay))] = r["sigma"]
+    return out
+
+
+def _union_index(lay: Layout) -> list[int]:
+    """Where each of a rung's physical parameters goes in PARAM_NAMES."""
+    idx = [0, 1, 2]
+    if lay.model >= BLINN_PHONG:
+        idx += [3, 4]
+    if lay.model >= GGX_ANISO:
+        idx += [5, 6]
+    if lay.normals:
+        idx += [7, 8]
+    return idx
+
+
+@jax.jit(static_argnames=("lay",))
+def _physical_chunk(u, lay):
+    p = jax.vmap(lambda v: _fit_model.unpack(v, lay))(u)
+    return p, jax.vmap(_fit_model.frame)(p["normal"], p["phi"])
+
+
+def _physical(u, lay, size):
+    """A rung's u [n, lay.size] unpacked to NumPy physical maps and the fitted frames R [n, 3, 3]
+    (surface-frame coordinates), ``size`` samples per call (padded: one program per rung)."""
+    parts = [_physical_chunk(jnp.asarray(u[idx]), lay) for idx, _ in _chunks_of(np.arange(len(u)), size)]
+    p, R = jax.tree_util.tree_map(lambda *x: np.concatenate([np.asarray(a) for a in x])[:len(u)], *parts)
+    return p, R
