@@ -24,19 +24,25 @@ _FALLBACK_SWITCH = 0.9
 
 
 def orthonormal_basis(n: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
-    """(t, b), unit and orthogonal to each other and to the unit normal ``n``,
-    with t x b = n (right-handed), by the branchless construction of Duff,
-    Burgess, Christensen, Hery, Kensler, Liani and Villemin 2017, "Building an
-    Orthonormal Basis, Revisited" (JCGT 6(1), the revised branchless listing):
+    """A right-handed tangent and bitangent (t, b) for unit normals n, by a branchless construction.
 
         s = sign(n_z), a = -1 / (s + n_z), c = n_x n_y a
         t = (1 + s n_x^2 a, s c, -s n_x),   b = (c, s + n_y^2 a, -n_y)
 
-    Continuous everywhere except across n_z = 0 and accurate up to n = (0, 0, -1)
-    (|s + n_z| >= 1, so no division by a small number and finite gradients
-    everywhere; sign(0) = +1, also for -0.0). The basis is some rotation about n, not a chosen
-    tangent: use :func:`frame_from_normal_tangent` for that. JAX (NumPy input
-    is converted), any batch shape [*batch, 3]."""
+    Continuous everywhere except across n_z = 0 and accurate up to n = (0, 0, -1) (|s + n_z| >= 1, so no division
+    by a small number and finite gradients everywhere; sign(0) = +1, also for -0.0). The basis is some rotation
+    about n, not a chosen tangent: use ``frame_from_normal_tangent`` for that. JAX (NumPy input is converted).
+
+    Args:
+        n: unit normals [*batch, 3].
+
+    Returns:
+        (t, b), each [*batch, 3], unit and orthogonal to each other and to n, with t x b = n.
+
+    References:
+        Duff, Burgess, Christensen, Hery, Kensler, Liani and Villemin 2017, "Building an orthonormal basis,
+        revisited", JCGT 6(1) (the revised branchless listing).
+    """
     n = jnp.asarray(n)
     x, y, z = n[..., 0:1], n[..., 1:2], n[..., 2:3]
     sign = jnp.where(z >= 0, 1.0, -1.0)
@@ -50,17 +56,20 @@ def orthonormal_basis(n: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*b
 def frame_from_normal_tangent(
     n: Float[ArrayLike, "*batch 3"], t_guess: Float[ArrayLike, "*batch 3"]
 ) -> tuple[Float[ArrayLike, "*batch 3"], Float[ArrayLike, "*batch 3"]]:
-    """(t, b) of the right-handed orthonormal frame (t, b, n) whose tangent t is
-    ``t_guess`` made orthogonal to the unit normal ``n`` by Gram-Schmidt,
-    t = normalize(t_guess - n (n.t_guess)), and b = n x t.
+    """The right-handed orthonormal frame (t, b, n) whose tangent is ``t_guess`` made orthogonal to ``n``.
 
-    Where the guess is degenerate (|t_guess - n (n.t_guess)| < 1e-8: a UV chart
-    without a tangent) any tangent will do, and the one taken is x (or y where
-    |n_x| >= 0.9) made orthogonal to n the same way. ``n``, ``t_guess``
-    [*batch, 3]. NumPy arrays in, NumPy out (stage runs it on host arrays;
-    bit-for-bit the texel sampler's former ``_orthonormal_frame``); a JAX array
-    for either input uses jax.numpy, with finite gradients (the fallback is
-    selected by a mask, and the vector normalised is never near zero for unit n).
+    Gram-Schmidt: t = normalize(t_guess - n (n.t_guess)), b = n x t. Where the guess is degenerate
+    (|t_guess - n (n.t_guess)| < 1e-8: a UV chart without a tangent) any tangent will do, and the one taken is x
+    (or y where |n_x| >= 0.9) made orthogonal to n the same way. NumPy arrays in, NumPy out (stage runs it on host
+    arrays); a JAX array for either input uses jax.numpy, with finite gradients (the fallback is selected by a
+    mask, and the vector normalised is never near zero for unit n).
+
+    Args:
+        n: unit normals [*batch, 3].
+        t_guess: tangent guesses [*batch, 3].
+
+    Returns:
+        (t, b), each [*batch, 3].
     """
     xp = jnp if isinstance(n, jax.Array) or isinstance(t_guess, jax.Array) else np
     n = xp.asarray(n)

@@ -59,17 +59,35 @@ def nbrdf_folder() -> Path:
 
 
 def nbrdf_names(folder: str | os.PathLike | None = None) -> list[str]:
-    """Sorted material names (file stems of ``*.h5``) in ``folder`` (default :func:`nbrdf_folder`);
-    empty when the folder is absent."""
+    """Sorted material names (file stems of ``*.h5``) in an NBRDF folder.
+
+    Args:
+        folder: the folder (None: ``nbrdf_folder()``).
+
+    Returns:
+        The names; empty when the folder is absent.
+    """
     folder = nbrdf_folder() if folder is None else Path(folder)
     return sorted(p.stem for p in folder.glob("*.h5")) if folder.is_dir() else []
 
 
 def nbrdf_encoding(wi: Float[Array, "*batch 3"], wo: Float[Array, "*batch 3"]) -> Float[Array, "*batch 6"]:
-    """The NBRDF input (h_x, h_y, h_z, d_x, d_y, d_z) of Sztrajman et al. 2021: the half
-    vector at phi_h = 0, (sin theta_h, 0, cos theta_h), and the Rusinkiewicz 1998
-    difference vector (sin theta_d cos phi_d, sin theta_d sin phi_d, cos theta_d), the
-    angles from :func:`brdf.half_diff_coords` (d is wi in the half vector's frame)."""
+    """The NBRDF network's input (h_x, h_y, h_z, d_x, d_y, d_z) for direction pairs.
+
+    The half vector at phi_h = 0, (sin theta_h, 0, cos theta_h), and the difference vector
+    (sin theta_d cos phi_d, sin theta_d sin phi_d, cos theta_d), the angles from ``brdf.half_diff_coords`` (d is wi
+    in the half vector's frame).
+
+    Args:
+        wi, wo: unit directions [*batch, 3] in the shading frame.
+
+    Returns:
+        The encoding [*batch, 6].
+
+    References:
+        Sztrajman et al. 2021, "Neural BRDF representation and importance sampling"; Rusinkiewicz 1998,
+        "A new change of variables for efficient BRDF representation".
+    """
     theta_h, _, theta_d, phi_d = half_diff_coords(wi, wo)
     st = jnp.sin(theta_d)
     return jnp.stack([jnp.sin(theta_h), jnp.zeros_like(theta_h), jnp.cos(theta_h),
@@ -178,14 +196,25 @@ def _check_json(path: Path, h5_path: Path) -> None:
 
 
 def load_nbrdf(path_or_name: str | os.PathLike, folder: str | os.PathLike | None = None) -> NBRDF:
-    """Load an NBRDF network from its Keras HDF5 weights (layers ``dense_1..3``, each
-    ``<layer>/<layer>/kernel:0`` and ``bias:0``), as float32 arrays.
+    """Load an NBRDF network from its Keras HDF5 weights, as float32 arrays.
 
-    ``path_or_name``: a ``.h5`` path, or a material name (``"gold-metallic-paint"``) looked up
-    in ``folder`` (default :func:`nbrdf_folder`). The ``.json`` architecture beside it, when
-    present, is checked to be the NBRDF one (Dense relu, relu, linear, Lambda exp - 1).
-    Raises ValueError naming the file when it is missing, not HDF5, lacks a layer, has
-    shapes that do not chain 6 -> H -> H -> 3, or holds non-finite weights.
+    The weights are layers ``dense_1..3``, each ``<layer>/<layer>/kernel:0`` and ``bias:0``. The ``.json``
+    architecture beside the file, when present, is checked to be the NBRDF one (Dense relu, relu, linear, Lambda
+    exp - 1).
+
+    Args:
+        path_or_name: a ``.h5`` path, or a material name (``"gold-metallic-paint"``) looked up in ``folder``.
+        folder: where names are looked up (None: ``nbrdf_folder()``).
+
+    Returns:
+        The ``NBRDF`` model.
+
+    Raises:
+        ValueError: naming the file, when it is missing, not HDF5, lacks a layer, has shapes that do not chain
+            6 -> H -> H -> 3, or holds non-finite weights.
+
+    References:
+        Sztrajman et al. 2021, "Neural BRDF representation and importance sampling".
     """
     path = _resolve_path(path_or_name, folder)
     if not path.is_file():
@@ -227,12 +256,25 @@ HALF_BREAKS = (0.002, 0.006, 0.02, 0.06, 0.2, 0.5)
 
 def directional_albedo_half(model, wo: Float[Array, "M 3"], n_theta: int = 24, n_phi: int = 64,
                             breaks=HALF_BREAKS) -> Float[Array, "M C"]:
-    """Directional albedo a(wo) = integral f_r(wi, wo) cos(theta_i) dwi (the white furnace
-    quantity of ``brdf.check.directional_albedo``), integrated over the half vector h instead
-    of wi: wi = 2 (wo.h) h - wo, dwi = 4 (wo.h) dh (Walter et al. 2007, eq. 14), with
-    ``brdf.check.hemisphere_quadrature`` panels at ``breaks`` in theta_h. Resolves lobes
-    that peak at h = n, however narrow, for every wo (a wi-quadrature misses MERL's
-    mirror-like metals). One material (parameters 0-d or [C]); ``wo`` [M, 3] unit."""
+    """Directional albedo a(wo) = integral f_r(wi, wo) cos(theta_i) dwi, integrated over the half vector.
+
+    The white-furnace quantity of ``brdf.check.directional_albedo``, with wi = 2 (wo.h) h - wo and
+    dwi = 4 (wo.h) dh, on ``brdf.check.hemisphere_quadrature`` panels at ``breaks`` in theta_h. It resolves lobes
+    that peak at h = n, however narrow, for every wo (a wi-quadrature misses MERL's mirror-like metals).
+
+    Args:
+        model: one material (parameters 0-d or [C]).
+        wo: unit outgoing directions [M, 3].
+        n_theta, n_phi: quadrature points per theta_h panel and in phi_h.
+        breaks: the panel boundaries in theta_h.
+
+    Returns:
+        Albedo [M, C].
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough surfaces", eq. 14 (the half-vector
+        Jacobian).
+    """
     wo = jnp.atleast_2d(jnp.asarray(wo))
     h, w_h = hemisphere_quadrature(n_theta, n_phi, breaks, dtype=wo.dtype)
 

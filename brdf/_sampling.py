@@ -97,21 +97,28 @@ _GOLDEN = (1 + 5**0.5) / 2
 
 
 def fibonacci_sphere(n: int, axis: int = 2, hemisphere: bool = False) -> Float[np.ndarray, "n 3"]:
-    """``n`` nearly uniform unit directions [n, 3] (float64, NumPy: a static
-    pattern built on the host) on a Fibonacci (golden-angle) spiral, after
-    Gonzalez 2010 ("Measurement of areas on a sphere using Fibonacci and
-    latitude-longitude lattices", Math. Geosci. 42), in its variant for any n
-    with the points at the centres of n equal-area bands:
+    """``n`` nearly uniform unit directions on a Fibonacci (golden-angle) spiral (float64 NumPy, built on the host).
+
+    The variant for any n with the points at the centres of n equal-area bands:
 
         c_k = 1 - (2k + 1) / n,   phi_k = 2 pi k / golden,   k = 0 .. n - 1
 
-    with c_k the component along the pole ``axis`` (0, 1 or 2; 2 = the shading
-    normal) and (sqrt(1 - c^2) cos phi, sqrt(1 - c^2) sin phi) the other two
-    components in increasing index order. Point k covers the equal-area band
-    around c_k, so each point stands for 4 pi / n sr (2 pi / n with
-    ``hemisphere``). With ``hemisphere`` the points cover only the upper half
-    (c_k = 1 - (k + 0.5) / n > 0). ``fibonacci_sphere(n, axis=1)`` is exactly
-    the ordering and rounding of ``stage.fibonacci_sphere`` (the y pole).
+    with c_k the component along the pole ``axis`` and (sqrt(1 - c^2) cos phi, sqrt(1 - c^2) sin phi) the other
+    two components in increasing index order. Point k covers the equal-area band around c_k, so each point stands
+    for 4 pi / n sr (2 pi / n with ``hemisphere``). ``fibonacci_sphere(n, axis=1)`` is exactly the ordering and
+    rounding of ``stage.fibonacci_sphere`` (the y pole).
+
+    Args:
+        n: the number of directions.
+        axis: the pole (0, 1 or 2; 2 = the shading normal).
+        hemisphere: cover only the upper half (c_k = 1 - (k + 0.5) / n > 0).
+
+    Returns:
+        Unit directions [n, 3].
+
+    References:
+        Gonzalez 2010, "Measurement of areas on a sphere using Fibonacci and latitude-longitude lattices",
+        Math. Geosci. 42.
     """
     n = int(n)
     if n < 1:
@@ -129,7 +136,13 @@ def fibonacci_sphere(n: int, axis: int = 2, hemisphere: bool = False) -> Float[n
 
 
 def fibonacci_hemisphere(n: int, axis: int = 2) -> Float[np.ndarray, "n 3"]:
-    """``n`` nearly uniform unit directions [n, 3] on the upper hemisphere about
-    ``axis`` (default the shading normal z): :func:`fibonacci_sphere` with
-    ``hemisphere=True``. Each point stands for 2 pi / n sr."""
+    """``n`` nearly uniform unit directions on the upper hemisphere: ``fibonacci_sphere(n, axis, hemisphere=True)``.
+
+    Args:
+        n: the number of directions; each stands for 2 pi / n sr.
+        axis: the pole (default 2, the shading normal z).
+
+    Returns:
+        Unit directions [n, 3].
+    """
     return fibonacci_sphere(n, axis, hemisphere=True)

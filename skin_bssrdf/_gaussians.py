@@ -141,17 +141,26 @@ def fit_sum_of_gaussians(
     variances: ArrayLike | None = None,
     r_max: float | None = None,
 ) -> SumOfGaussians:
-    """Fit a sum of Gaussians to any radial profile, per channel (offline, NumPy).
+    """A sum of Gaussians fitted to any radial profile, per channel (offline, NumPy; not differentiable).
 
-    Minimises integral_0^r_max r (R(r) - sum_k w_k G(v_k, r))^2 dr (the error
-    d'Eon et al. 2007 minimise, section 3) over w >= 0 by non-negative least
-    squares, with the energy constraint sum_k w_k = ``profile.total()`` imposed
-    exactly (a heavily weighted row, then a final rescale), so the fit conserves
-    the profile's albedo. ``variances`` (mm^2, shape [K]) default to ``n`` values
-    spaced geometrically between the squared radii holding 2 % and 99.8 % of the
-    energy of the narrowest and widest channel, then refined by a coordinate
-    search on the spacing. Profile parameters must have shape [C] (one profile).
-    Not differentiable (the fit is a preprocessing step).
+    Minimises integral_0^r_max r (R(r) - sum_k w_k G(v_k, r))^2 dr over w >= 0 by non-negative least squares,
+    with the energy constraint sum_k w_k = ``profile.total()`` imposed exactly (a heavily weighted row, then a
+    final rescale), so the fit conserves the profile's albedo.
+
+    Args:
+        profile: one radial profile (parameters of shape [C]).
+        n: the number of Gaussians when ``variances`` is None.
+        variances: the Gaussians' variances (mm^2, [K]); None: ``n`` values spaced geometrically between the
+            squared radii holding 2 % and 99.8 % of the energy of the narrowest and widest channel, then refined by
+            a coordinate search on the spacing.
+        r_max: the upper limit of the fitted radii (mm); None: 1.5 x the radius holding 99.8 % of the widest
+            channel's energy.
+
+    Returns:
+        The ``SumOfGaussians``.
+
+    References:
+        d'Eon, Luebke and Enderton 2007, "Efficient rendering of human skin", sec. 3 (the error minimised).
     """
     if profile.batch_shape != ():
         raise ValueError(

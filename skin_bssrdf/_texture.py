@@ -52,8 +52,18 @@ _SIGMA_MIN_TEXELS = 0.2
 
 
 def gaussian_kernel1d(sigma: float, truncate: float = TRUNCATE, dtype=None) -> Float[Array, " taps"]:
-    """Normalised 1-D Gaussian of standard deviation ``sigma`` (texels) with
-    2 ceil(truncate sigma) + 1 taps (the same discrete kernel as kornia's get_gaussian_kernel1d)."""
+    """A normalised 1-D Gaussian kernel of standard deviation ``sigma`` (texels), 2 ceil(truncate sigma) + 1 taps.
+
+    The same discrete kernel as kornia's ``get_gaussian_kernel1d``.
+
+    Args:
+        sigma: standard deviation in texels (concrete).
+        truncate: half-width in standard deviations.
+        dtype: the kernel's dtype (None: the default float).
+
+    Returns:
+        The taps [2 ceil(truncate sigma) + 1], summing to 1.
+    """
     if not (math.isfinite(sigma) and sigma > 0):
         raise ValueError(f"gaussian_kernel1d: sigma (texels) must be finite and > 0, got {sigma!r}")
     half = int(math.ceil(truncate * sigma))
@@ -65,8 +75,16 @@ def gaussian_kernel1d(sigma: float, truncate: float = TRUNCATE, dtype=None) -> F
 def gaussian_blur(
     image: Float[Array, "height width channel"], sigma: float, truncate: float = TRUNCATE
 ) -> Float[Array, "height width channel"]:
-    """Separable Gaussian blur of an [H, W, C] image, ``sigma`` in texels (a concrete
-    float), reflect border (no edge repeat), kernel 2 ceil(truncate sigma) + 1 taps."""
+    """Separable Gaussian blur of an image with a reflect border (no edge repeat).
+
+    Args:
+        image: the image [H, W, C].
+        sigma: standard deviation in texels (a concrete float).
+        truncate: half-width of the kernel in standard deviations (2 ceil(truncate sigma) + 1 taps).
+
+    Returns:
+        The blurred image [H, W, C].
+    """
     image = jnp.asarray(image)
     if image.ndim != 3:
         raise ValueError(f"gaussian_blur: image must have shape [H, W, C], got {image.shape}")
