@@ -21,11 +21,12 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from . import render as render
     from . import view as view
     from .fitting import ALPHA_FIT_MIN as ALPHA_FIT_MIN
-    from .fitting import FAILED_NONFINITE as FAILED_NONFINITE
     from .fitting import LOSSES as LOSSES
     from .fitting import PARAM_NAMES as PARAM_NAMES
+    from .fitting import RESULTS as RESULTS
     from .fitting import SOLVERS as SOLVERS
     from .fitting import Fit as Fit
+    from .fitting import FitOptions as FitOptions
     from .fitting import fit as fit
     from .fitting import fit_patterns as fit_patterns
     from .fitting import fit_subsurface as fit_subsurface
@@ -41,7 +42,8 @@ _SUBPACKAGES = ("envmap", "fitting", "image", "io", "materials", "patterns", "re
 # name -> the subpackage that defines it
 _NAMES = {
     "ALPHA_FIT_MIN": "fitting",
-    "FAILED_NONFINITE": "fitting",
+    "RESULTS": "fitting",
+    "FitOptions": "fitting",
     "LOSSES": "fitting",
     "PARAM_NAMES": "fitting",
     "SOLVERS": "fitting",

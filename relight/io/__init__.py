@@ -59,6 +59,10 @@ from ._resultset import ResultSetError as ResultSetError
 from ._resultset import WriteError as WriteError
 from ._resultset import open_result_set as open_result_set
 from ._resultset import result_set as result_set
+from ._source import ArraySource as ArraySource
+from ._source import CaptureSource as CaptureSource
+from ._source import capture_source as capture_source
+from ._source import valid_counts as valid_counts
 from ._store import CaptureStore as CaptureStore
 from ._store import CaptureStoreError as CaptureStoreError
 from ._store import CaptureStoreWriter as CaptureStoreWriter
@@ -92,6 +96,10 @@ from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
 
 __all__ = [
+    "ArraySource",
+    "CaptureSource",
+    "capture_source",
+    "valid_counts",
     "CaptureFolderWriter",
     "store_blocks",
     "CaptureStore",

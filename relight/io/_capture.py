@@ -258,7 +258,8 @@ def _check_info(info: object, where: Path) -> Mapping:
 class CaptureReader:
     """Lazy access to a capture folder: nothing but the JSON files is read until
     asked, so stacks larger than memory can be streamed light by light or in
-    sample chunks (:meth:`iter_lights`, :meth:`load` with ``samples=``).
+    sample chunks (:meth:`iter_lights`, :meth:`read` with ``samples=``): a
+    ``relight.io.CaptureSource``.
 
     Attributes:
         folder, n_views, n_lights, n_samples, n_channels, sample_shape,
@@ -372,27 +373,24 @@ class CaptureReader:
             rad, valid = self.read_image(view, light, samples, dtype)
             yield light, rad, valid
 
-    def load(
-        self,
-        views: Sequence[int] | None = None,
-        lights: Sequence[int] | None = None,
-        samples: slice | None = None,
-        dtype=np.float32,
-    ) -> CaptureData:
-        """Load (a subset of) the stack into memory as :class:`CaptureData`.
+    def _axis(self, sel, n: int, what: str) -> tuple[int, ...]:
+        """The indices a selector (None = all, an int, a slice or a sequence of ints) picks, checked."""
+        if sel is None:
+            return tuple(range(n))
+        if isinstance(sel, slice):
+            return tuple(range(n)[sel])
+        idx = tuple(int(i) for i in np.atleast_1d(np.asarray(sel)))
+        for i in idx:
+            if not 0 <= i < n:
+                raise IndexError(f"{self.folder}: {what} {i} out of range (capture has {n})")
+        return idx
 
-        ``samples`` selects a contiguous chunk of the flattened samples, so a
-        stack larger than memory can be processed chunk by chunk (each chunk
-        costs one pass over the files). ``dtype=None`` keeps the stored dtype.
-        """
-        vs = tuple(range(self.n_views)) if views is None else tuple(int(v) for v in views)
-        ls = tuple(range(self.n_lights)) if lights is None else tuple(int(l) for l in lights)
-        for v in vs:
-            if not 0 <= v < self.n_views:
-                raise IndexError(f"{self.folder}: view {v} out of range (capture has {self.n_views})")
-        for l in ls:
-            if not 0 <= l < self.n_lights:
-                raise IndexError(f"{self.folder}: light {l} out of range (capture has {self.n_lights})")
+    def _load(self, views, lights, samples, dtype):
+        """(views, lights, radiance [V', L', P', C], valid [V', L', P'] or None) of a selection."""
+        vs = self._axis(views, self.n_views, "view")
+        ls = self._axis(lights, self.n_lights, "light")
+        if samples is not None and not isinstance(samples, slice):
+            raise ValueError(f"{self.folder}: samples must be None or a slice of the flattened image, got {samples!r}")
         n_sel = len(range(*(samples or slice(None)).indices(self.n_samples)))
         radiance = valid = None
         for i, v in enumerate(vs):
@@ -404,20 +402,38 @@ class CaptureReader:
                 radiance[i, j] = rad
                 if valid is not None:
                     valid[i, j] = val
-        rig = dict(self.rig)
-        for key in ("directions", "positions", "intensities", "solid_angles"):
-            if key in rig and np.ndim(rig[key]) >= 1 and len(rig[key]) == self.n_lights:
-                rig[key] = rig[key][list(ls)]
-        return CaptureData(
-            radiance=radiance,
-            valid=valid,
-            rig=rig,
-            cameras=[self.cameras[v] for v in vs],
-            metadata=self.metadata,
-            sample_shape=self.sample_shape,
-            lights=ls,
-            views=vs,
-        )
+        if radiance is None:  # nothing selected
+            radiance = np.empty((len(vs), len(ls), n_sel, self.n_channels), np.float32 if dtype is None else dtype)
+            valid = np.empty(radiance.shape[:3], bool) if self.has_valid else None
+        return vs, ls, radiance, valid
+
+    def read(self, views=None, lights=None, samples=None, dtype=np.float32) -> tuple[np.ndarray, np.ndarray]:
+        """Radiance and mask of a selection (``relight.io.CaptureSource``'s read).
+
+        Each light image is one file, decoded whole: a selection costs one pass over the files it
+        touches, so a stack larger than memory is read a chunk of samples at a time.
+
+        Args:
+            views, lights: None (all), an int, a slice or a sequence of ints.
+            samples: None or a slice of the flattened image.
+            dtype: the radiance's dtype (None keeps the stored one).
+
+        Returns:
+            (radiance [V', L', P', C], mask [V', L', P'] bool): the ``valid`` channel, or every
+            observation valid where the files have none.
+        """
+        _, _, radiance, valid = self._load(views, lights, samples, dtype)
+        return radiance, np.ones(radiance.shape[:3], bool) if valid is None else valid
+
+    def read_mask(self, views=None, lights=None, samples=None) -> np.ndarray:
+        """The mask [V', L', P'] of :meth:`read`'s selection (no file read where the capture has no
+        ``valid`` channel: every observation is valid)."""
+        if not self.has_valid:
+            vs = self._axis(views, self.n_views, "view")
+            ls = self._axis(lights, self.n_lights, "light")
+            n_sel = len(range(*(samples or slice(None)).indices(self.n_samples)))
+            return np.ones((len(vs), len(ls), n_sel), bool)
+        return self.read(views, lights, samples, dtype=None)[1]
 
 
 def open_capture(folder: str | os.PathLike) -> CaptureReader:
@@ -432,5 +448,30 @@ def read_capture(
     lights: Sequence[int] | None = None,
     dtype=np.float32,
 ) -> CaptureData:
-    """Read a whole capture folder (or the chosen views/lights) into memory."""
-    return CaptureReader(folder).load(views, lights, dtype=dtype)
+    """Read a whole capture folder (or the chosen views/lights) into memory.
+
+    Args:
+        folder: the capture folder.
+        views, lights: the views and lights to read (None = all).
+        dtype: the radiance's dtype (None keeps the stored one).
+
+    Returns:
+        :class:`CaptureData` (``valid`` None where the files have no valid channel; the rig's
+        per-light arrays cut to ``lights``).
+    """
+    reader = CaptureReader(folder)
+    vs, ls, radiance, valid = reader._load(views, lights, None, dtype)
+    rig = dict(reader.rig)
+    for key in ("directions", "positions", "intensities", "solid_angles"):
+        if key in rig and np.ndim(rig[key]) >= 1 and len(rig[key]) == reader.n_lights:
+            rig[key] = rig[key][list(ls)]
+    return CaptureData(
+        radiance=radiance,
+        valid=valid,
+        rig=rig,
+        cameras=[reader.cameras[v] for v in vs],
+        metadata=reader.metadata,
+        sample_shape=reader.sample_shape,
+        lights=ls,
+        views=vs,
+    )
