@@ -30,16 +30,38 @@ PATTERNS = ("full", "x", "y", "z")
 
 
 def gradient_weights(rig: Rig) -> Float[Array, "4 light channel"]:
-    """Weights [4, L, C] that turn OLAT images into the full-on, x, y and z
-    gradient images: pattern value x solid angle / centre irradiance."""
+    """Weights that turn OLAT images into the full-on, x, y and z spherical gradient images.
+
+    Each weight is the pattern's value at the light x the light's solid angle / its irradiance at the centre.
+
+    Args:
+        rig: the light rig.
+
+    Returns:
+        Weights [4, L, C] (full, x, y, z).
+
+    References:
+        Ma et al. 2007, "Rapid acquisition of specular and diffuse normal maps from polarized spherical gradient
+        illumination", sec. 3.
+    """
     d = rig.directions
     pattern = jnp.concatenate([jnp.ones((1, rig.num_lights), d.dtype), 0.5 * (1.0 + d.T)], axis=0)  # [4, L]
     return pattern[:, :, None] * (rig.solid_angle[:, None] / rig.center_irradiance)[None]
 
 
 def gradient_images(capture: Capture) -> Float[Array, "view 4 sample channel"]:
-    """The four gradient-illumination images [V, 4, P, C] (full, x, y, z) from an
-    OLAT capture: sum over lights of weight x OLAT radiance."""
+    """The four gradient-illumination images (full, x, y, z) of an OLAT capture: sum over lights of weight x OLAT.
+
+    Args:
+        capture: an OLAT capture (radiance [V, L, P, C]).
+
+    Returns:
+        Images [V, 4, P, C].
+
+    References:
+        Ma et al. 2007, "Rapid acquisition of specular and diffuse normal maps from polarized spherical gradient
+        illumination", sec. 3.
+    """
     w = gradient_weights(capture.rig).astype(capture.radiance.dtype)
     return jnp.einsum("klc,vlpc->vkpc", w, capture.radiance)
 
@@ -58,17 +80,39 @@ def _ratio_vector(images, channel_weights=None):
 def diffuse_normals(
     images: Float[Array, "*batch 4 sample channel"], channel_weights=None
 ) -> Float[Array, "*batch sample 3"]:
-    """World-space diffuse normals normalize(2 I_{x,y,z} - I_full) (Ma et al. 2007
-    eq. 4) from gradient images [..., 4, P, C], channels averaged (or weighted by
-    ``channel_weights`` [C]). Samples that received no light give the zero vector."""
+    """World-space diffuse normals normalize(2 I_(x,y,z) - I_full) from gradient images.
+
+    Args:
+        images: gradient images [*batch, 4, P, C] (full, x, y, z).
+        channel_weights: weights [C] of the channels (None: their mean).
+
+    Returns:
+        Unit normals [*batch, P, 3]; the zero vector for samples that received no light.
+
+    References:
+        Ma et al. 2007, "Rapid acquisition of specular and diffuse normal maps from polarized spherical gradient
+        illumination", eq. 4.
+    """
     return safe_normalize(_ratio_vector(images, channel_weights))
 
 
 def specular_normals(images: Float[Array, "*batch 4 sample channel"], wo: Float[Array, "*batch sample 3"],
                      channel_weights=None) -> Float[Array, "*batch sample 3"]:
-    """World-space specular normals from specular-only gradient images (parallel
-    minus cross polarised): the half vector between the reflection vector
-    normalize(2 I_i - I_full) and the world view direction ``wo`` (unit, toward
-    the camera) — Ma et al. 2007 sec. 3.2."""
+    """World-space specular normals from specular-only gradient images (parallel minus cross polarised).
+
+    The half vector between the reflection vector normalize(2 I_i - I_full) and the view direction.
+
+    Args:
+        images: specular gradient images [*batch, 4, P, C] (full, x, y, z).
+        wo: unit world directions toward the camera [*batch, P, 3].
+        channel_weights: weights [C] of the channels (None: their mean).
+
+    Returns:
+        Unit normals [*batch, P, 3].
+
+    References:
+        Ma et al. 2007, "Rapid acquisition of specular and diffuse normal maps from polarized spherical gradient
+        illumination", sec. 3.2.
+    """
     r = safe_normalize(_ratio_vector(images, channel_weights))
     return safe_normalize(r + jnp.asarray(wo))

@@ -33,14 +33,22 @@ def _face_dpdu(mesh: Mesh) -> np.ndarray:
 def image_samples(mesh: Mesh, camera: Camera, supersample: int = 1) -> Surface:
     """One surface sample per (sub)pixel whose primary ray hits ``mesh``.
 
-    Position is the ray hit; normal, uv interpolated from the hit's
-    barycentrics (``primary_hits``); tangent dP/du of the face (any tangent
-    when the mesh has no UVs; uv is then 0); area (mm^2) is the pixel's
-    footprint on the surface, z^2 / (fx fy) * (d . forward) / |d . n|
-    (pinhole; 1 / (fx fy |d . n|) orthographic), with the cosine floored at
-    1e-2. ``texel_index`` is the pixel index row * W + column on the
-    (supersampled) image grid ``resolution`` = (H, W). Raises ValueError when
-    no ray hits the mesh (a camera behind or beside everything).
+    Position is the ray hit; normal and uv are interpolated from the hit's barycentrics; tangent is dP/du of the
+    face (any tangent when the mesh has no UVs; uv is then 0); area (mm^2) is the pixel's footprint on the
+    surface, z^2 / (fx fy) * (d . forward) / |d . n| (pinhole; 1 / (fx fy |d . n|) orthographic), with the cosine
+    floored at 1e-2.
+
+    Args:
+        mesh: the mesh.
+        camera: the camera whose pixels are sampled.
+        supersample: sub-pixels per pixel along each axis.
+
+    Returns:
+        The ``Surface``; ``texel_index`` is the pixel index row * W + column on the (supersampled) image grid
+        ``resolution`` = (H, W).
+
+    Raises:
+        ValueError: no ray hits the mesh (a camera behind or beside everything).
     """
     hit, face, bary, pos = primary_hits(mesh, camera, supersample)
     h, w = hit.shape

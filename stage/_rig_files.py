@@ -53,8 +53,15 @@ _GAP_HINT_RATIO = 1.5
 
 
 def up_rotation(up: str, where: str = "up") -> np.ndarray:
-    """[3, 3] rotation taking the axis ``up`` ("+x" ... "-z") to +y: the smallest
-    one (Rodrigues), a 180-degree turn about +x when ``up`` is "-y"."""
+    """The smallest rotation (Rodrigues) taking the axis ``up`` to +y; a 180-degree turn about +x for "-y".
+
+    Args:
+        up: the axis, "+x" ... "-z".
+        where: the argument's name in error messages.
+
+    Returns:
+        The rotation [3, 3].
+    """
     up = _AXIS_ALIASES.get(up, up) if isinstance(up, str) else up
     if not isinstance(up, str) or up not in AXES:
         raise ValueError(f"{where}: up axis must be one of {', '.join(AXES)}, got {up!r}")
@@ -227,10 +234,19 @@ def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str,
 def load_rig_file(path, units: str | None = None, up: str | None = None, subset: str | None = None) -> Rig:
     """A ``stage.Rig`` from a rig file of any kind in the module docstring.
 
-    ``units`` / ``up`` state (and override) what the file declares; a ``.npy``
-    or ``.txt`` table needs both. ``subset`` picks a named light ordering
-    (``rig_file_subsets``), e.g. ``"polarized"`` on the Light Stage X table.
-    Raises FileNotFoundError, or ValueError naming the file and the field.
+    Args:
+        path: the rig file.
+        units: the position units; states (and overrides) what the file declares. A ``.npy`` or ``.txt`` table
+            needs it.
+        up: the file's up axis ("+x" ... "-z"); as ``units``.
+        subset: a named light ordering (``rig_file_subsets``), e.g. ``"polarized"`` on the Light Stage X table.
+
+    Returns:
+        The ``Rig``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: naming the file and the field.
     """
     path = Path(path)
     if not path.is_file():
@@ -244,7 +260,14 @@ def load_rig_file(path, units: str | None = None, up: str | None = None, subset:
 
 
 def rig_file_subsets(path) -> dict[str, np.ndarray]:
-    """The named light subsets of a rig file (0-based indices into its lights)."""
+    """The named light subsets of a rig file.
+
+    Args:
+        path: the rig file.
+
+    Returns:
+        ``name -> 0-based indices`` into its lights.
+    """
     path = Path(path)
     if path.suffix.lower() != ".json":
         return {}
