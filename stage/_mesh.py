@@ -37,14 +37,23 @@ class Mesh:
 
 
 def load_mesh(path, scale: float = 1.0, center: bool = False, require_uv: bool = False) -> Mesh:
-    """Load an OBJ/PLY/GLB mesh with trimesh, multiply positions by ``scale``
-    (to mm), optionally move its bounding-box centre to the origin.
+    """Load an OBJ/PLY/GLB mesh with trimesh.
 
-    Normals missing from the file are computed (area-weighted); degenerate
-    (zero-area) faces are dropped. Raises ValueError naming the file when it is
-    not a readable mesh, has no triangles, a face index out of range, a NaN /
-    Inf vertex or UV, a coordinate beyond ``MAX_COORDINATE_MM`` (after
-    ``scale``), or no UVs while ``require_uv``.
+    Normals missing from the file are computed (area-weighted); degenerate (zero-area) faces are dropped.
+
+    Args:
+        path: the mesh file.
+        scale: factor taking the file's positions to mm.
+        center: move the bounding-box centre to the origin.
+        require_uv: refuse a mesh without UVs.
+
+    Returns:
+        The ``Mesh``.
+
+    Raises:
+        ValueError: naming the file, when it is not a readable mesh, has no triangles, a face index out of range,
+            a NaN / Inf vertex or UV, a coordinate beyond ``MAX_COORDINATE_MM`` (after ``scale``), or no UVs while
+            ``require_uv``.
     """
     path = Path(path)
     if not path.is_file():
@@ -166,10 +175,19 @@ class MeshReport:
 
 
 def check_mesh(mesh: Mesh, area_tol: float = 0.0, require_uv: bool = False) -> MeshReport:
-    """Validate a mesh: degenerate faces (area <= ``area_tol`` mm^2), faces with
-    repeated or out-of-range indices, non-finite vertices, non-unit normals.
-    Returns a MeshReport; raises ValueError only when ``require_uv`` and the mesh
-    has no UVs (texel-space sampling needs them)."""
+    """Validate a mesh: degenerate faces, repeated or out-of-range indices, non-finite vertices, non-unit normals.
+
+    Args:
+        mesh: the mesh.
+        area_tol: faces with an area <= this (mm^2) count as degenerate.
+        require_uv: refuse a mesh without UVs (texel-space sampling needs them).
+
+    Returns:
+        The ``MeshReport``.
+
+    Raises:
+        ValueError: only when ``require_uv`` and the mesh has no UVs.
+    """
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64)
     if require_uv and mesh.uv is None:

@@ -43,12 +43,22 @@ def _concrete(x) -> bool:
 
 
 def check_patterns(patterns, num_lights: int, dtype=None) -> Array:
-    """``patterns`` as a float array [K, L] (``dtype``, default float32 for
-    non-JAX input, else its own float dtype), checked: 2-D, L = ``num_lights``,
-    K >= 1, finite and within [0, 1] (a light cannot shine at a negative or
-    beyond full power). The value checks are skipped for traced input (a
-    pattern being learned under ``jax.grad``). Raises ValueError naming
-    ``patterns``."""
+    """``patterns`` as a checked float array [K, L]: 2-D, L = ``num_lights``, K >= 1, finite and within [0, 1].
+
+    A light cannot shine at a negative or beyond full power. The value checks are skipped for traced input (a
+    pattern being learned under ``jax.grad``).
+
+    Args:
+        patterns: light weights [K, L].
+        num_lights: the rig's L.
+        dtype: the float dtype (None: float32 for non-JAX input, else its own float dtype).
+
+    Returns:
+        The patterns [K, L].
+
+    Raises:
+        ValueError: naming ``patterns``.
+    """
     traced = isinstance(patterns, jax.core.Tracer)
     if not traced:
         try:
@@ -128,14 +138,23 @@ class PatternCapture(eqx.Module):
 
 
 def capture_patterns(capture: Capture, patterns) -> PatternCapture:
-    """The pattern capture an OLAT ``capture`` stands for: frame k =
-    sum_l W[k, l] x OLAT frame l (linearity of light; Kang et al. 2018 eq. 1,
-    Debevec et al. 2000's image-based relighting), each observation the
-    capture's mask leaves out (shadowed, behind the surface, saturated)
-    counting 0, as it does in the OLAT images. ``patterns`` [K, L] in [0, 1]
-    (ValueError naming ``patterns`` otherwise). ``valid`` [V, P] is True where
-    the sample has any valid OLAT observation in the view. Differentiable in
-    the radiance and the patterns (jit / grad / vmap)."""
+    """The pattern capture an OLAT capture stands for: frame k = sum_l W[k, l] x OLAT frame l (linearity of light).
+
+    Each observation the capture's mask leaves out (shadowed, behind the surface, saturated) counts 0, as it does
+    in the OLAT images. Differentiable in the radiance and the patterns (jit / grad / vmap).
+
+    Args:
+        capture: an OLAT capture.
+        patterns: light weights W [K, L] in [0, 1] (ValueError naming ``patterns`` otherwise).
+
+    Returns:
+        The ``PatternCapture``; its ``valid`` [V, P] is True where the sample has any valid OLAT observation in the
+        view.
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder", eq. 1; Debevec et al. 2000,
+        "Acquiring the reflectance field of a human face" (image-based relighting).
+    """
     V, L, P, C = capture.radiance.shape
     # A float16 capture is summed in float32 (hundreds of terms would lose float16's 11 bits).
     dt = jnp.float32 if jnp.dtype(capture.radiance.dtype).itemsize < 4 else capture.radiance.dtype
@@ -147,12 +166,23 @@ def capture_patterns(capture: Capture, patterns) -> PatternCapture:
 
 
 def sense_patterns(pcapture: PatternCapture, sensor: Sensor, key) -> PatternCapture:
-    """The pattern capture as ``sensor`` records it, one exposure per pattern
-    frame: radiance replaced by ``sensor.to_radiance(DN)`` of one noisy
-    exposure of each pattern measurement (so the shot noise is that of the
-    summed signal: Var = (gain / (wb exposure))^2 (exposure I_k + read^2) in
-    radiance units, Foi et al. 2008 eq. 1-3), saturated measurements marked in
-    ``saturated``, the sensor attached. Seeded by ``key`` (jax.random)."""
+    """The pattern capture as ``sensor`` records it, one noisy exposure per pattern frame.
+
+    The radiance is replaced by ``sensor.to_radiance(DN)`` of one exposure of each pattern measurement, so the shot
+    noise is that of the summed signal: Var = (gain / (wb exposure))^2 (exposure I_k + read^2) in radiance units.
+
+    Args:
+        pcapture: the noise-free pattern capture.
+        sensor: the camera sensor.
+        key: a ``jax.random`` key.
+
+    Returns:
+        The ``PatternCapture`` with saturated measurements marked in ``saturated`` and the sensor attached.
+
+    References:
+        Foi et al. 2008, "Practical Poissonian-Gaussian noise modeling and fitting for single-image raw-data",
+        eq. 1-3.
+    """
     if not isinstance(sensor, Sensor):
         raise ValueError(f"sense_patterns: sensor must be a stage.Sensor, got {type(sensor).__name__}")
     dn, sat = sensor.expose(key, pcapture.radiance)
@@ -164,15 +194,25 @@ def sense_patterns(pcapture: PatternCapture, sensor: Sensor, key) -> PatternCapt
 
 
 def gradient_patterns(rig: Rig, complement: bool = False) -> Float[Array, "pattern light"]:
-    """Spherical gradient illumination (Ma et al. 2007, eq. 2) as light weights
-    in [0, 1]: the full-on sphere P_f = 1 and the gradients P_i = (1 + w_i) / 2,
-    i in {x, y, z} ([4, L], order full, x, y, z as ``stage.PATTERNS``), or with
-    ``complement`` the gradients and their complements (1 - w_i) / 2 ([6, L]:
-    x, y, z, -x, -y, -z; P_i + its complement = P_f). Each light stands for its
-    Voronoi cell: weight P(w_l) Omega_l / E_l as ``stage.gradient_weights``
-    (E_l the light's irradiance at the centre, channels averaged), then the
-    whole set scaled by one factor so that its largest weight is 1 (ratios
-    between patterns, such as Ma et al.'s I_i / I_f = 1/2 + n_i/3, are kept)."""
+    """Spherical gradient illumination as light weights in [0, 1].
+
+    The full-on sphere P_f = 1 and the gradients P_i = (1 + w_i) / 2, i in {x, y, z}; with ``complement`` the
+    gradients and their complements (1 - w_i) / 2 (P_i + its complement = P_f). Each light stands for its Voronoi
+    cell: weight P(w_l) Omega_l / E_l as ``stage.gradient_weights`` (E_l the light's irradiance at the centre,
+    channels averaged), then the whole set is scaled by one factor so that its largest weight is 1 (ratios between
+    patterns, such as I_i / I_f = 1/2 + n_i/3, are kept).
+
+    Args:
+        rig: the light rig.
+        complement: the six gradients and complements instead of the full-on sphere and three gradients.
+
+    Returns:
+        Weights [4, L] (full, x, y, z, the order of ``stage.PATTERNS``), or [6, L] (x, y, z, -x, -y, -z).
+
+    References:
+        Ma et al. 2007, "Rapid acquisition of specular and diffuse normal maps from polarized spherical gradient
+        illumination", eq. 2.
+    """
     d = rig.directions
     e = jnp.mean(rig.center_irradiance, axis=-1)
     cell = rig.solid_angle.astype(d.dtype) / e.astype(d.dtype)
@@ -209,17 +249,25 @@ def _pattern_chunks(chunks, W, K: int):
 def simulate_patterns(surface, rig: Rig, cameras, material, light_visibility, camera_visibility, patterns, *,
                       light_chunk: int = 64, sample_chunk: int = 1 << 14, dtype=jnp.float32, progress=None,
                       polarization: str | None = None, subsurface=None) -> PatternCapture:
-    """Simulate a pattern capture directly: what ``capture_patterns(simulate(...),
-    patterns)`` gives, computed one (light chunk x sample chunk) block of the
-    one OLAT forward model at a time and summed into the [V, K, P, C] pattern
-    frames, never holding the [V, L, P, C] OLAT capture: peak memory beyond
-    the output is light_chunk x sample_chunk x C floats plus one
-    K x sample_chunk x C accumulator. Arguments as ``stage.simulate``
-    (``progress`` counts (view, light) images per sample chunk, phase
-    "simulate"); ``patterns`` [K, L] in [0, 1] (ValueError naming
-    ``patterns``). With ``subsurface`` the sample axis is not chunked (the
-    diffusion operator couples samples). Differentiable as ``simulate`` is
-    (the material, surface, rig, cameras and the patterns)."""
+    """Simulate a pattern capture directly, never holding the [V, L, P, C] OLAT capture.
+
+    What ``capture_patterns(simulate(...), patterns)`` gives, computed one (light chunk x sample chunk) block of
+    the one OLAT forward model at a time and summed into the [V, K, P, C] pattern frames: peak memory beyond the
+    output is light_chunk x sample_chunk x C floats plus one K x sample_chunk x C accumulator. Differentiable as
+    ``simulate`` is (the material, surface, rig, cameras and the patterns).
+
+    Args:
+        surface, rig, cameras, material, light_visibility, camera_visibility: as ``stage.simulate``.
+        patterns: light weights [K, L] in [0, 1] (ValueError naming ``patterns`` otherwise).
+        light_chunk: lights per block.
+        sample_chunk: samples per block; with ``subsurface`` the sample axis is not chunked (the diffusion
+            operator couples samples).
+        dtype, polarization, subsurface: as ``stage.simulate``.
+        progress: as ``stage.simulate``; counts (view, light) images per sample chunk, phase "simulate".
+
+    Returns:
+        The ``PatternCapture`` [V, K, P, C].
+    """
     cameras, lv, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                   camera_visibility, polarization, subsurface)
     if int(light_chunk) < 1 or int(sample_chunk) < 1:
