@@ -429,12 +429,25 @@ def gonioreflectometer(theta_i_deg, theta_o_deg, phi_o_deg=(0.0,), phi_i_deg: fl
                        sensor_resolution: int = 32, sensor_fov_deg: float = 2.0, irradiance: float = 1.0):
     """Ward's gonioreflectometer as a rig plus cameras (see ``Gonioreflectometer``).
 
-    Lights at polar angles ``theta_i_deg`` on the arc of azimuth ``phi_i_deg``
-    at ``light_radius_mm``; sensors at every (theta_o, phi_o) on an arc of
-    ``sensor_radius_mm`` (the sensor arc rotates about the normal to reach each
-    phi_o). Each light is a point source giving ``irradiance`` at normal
-    incidence at the sample centre. The lights all lie on one great circle, so
-    their solid angles are lunes (2 x angular spacing), which still sum to 4 pi.
+    Each light is a point source giving ``irradiance`` at normal incidence at the sample centre. The lights all
+    lie on one great circle, so their solid angles are lunes (2 x angular spacing), which still sum to 4 pi.
+
+    Args:
+        theta_i_deg: the lights' polar angles (degrees), on the arc of azimuth ``phi_i_deg``.
+        theta_o_deg, phi_o_deg: the sensors' polar angles and azimuths (degrees): a sensor at every
+            (theta_o, phi_o) (the sensor arc rotates about the normal to reach each phi_o).
+        phi_i_deg: the lights' azimuth (degrees).
+        light_radius_mm: the lights' distance from the sample (mm).
+        sensor_radius_mm: the sensors' distance from the sample (mm).
+        sensor_resolution: each sensor's image width and height (pixels).
+        sensor_fov_deg: each sensor's field of view (degrees).
+        irradiance: irradiance at normal incidence at the sample centre.
+
+    Returns:
+        The ``Gonioreflectometer`` (rig and cameras).
+
+    References:
+        Ward 1992, "Measuring and modeling anisotropic reflection", sec. 2.
     """
     from ._camera import look_at
 
@@ -461,17 +474,19 @@ def gonioreflectometer(theta_i_deg, theta_o_deg, phi_o_deg=(0.0,), phi_i_deg: fl
 
 
 def light_stage_x_faces(source: str = "table") -> np.ndarray:
-    """Triangulation of the 85 polarized Light Stage X lights: int [F, 3],
-    0-based indices into ``light_stage_x("polarized")``, wound counter-clockwise
-    seen from outside (outward normals).
+    """Triangulation of the 85 polarized Light Stage X lights, wound counter-clockwise seen from outside.
 
-    ``source="table"``: the bundled table's faces (1-based in the file),
-    with its repeated faces removed (the file repeats two triangles 5 and 6
-    times: 177 rows, 168 distinct). Note: the table's fan around polarized
-    light 78 (raw row 322) was built with that light at the duplicated
-    position of row 197; with the restored position, the triangulation of the
-    actual directions is ``source="hull"`` (their convex hull, 166 faces),
-    which shares 156 faces with the table.
+    ``source="table"``: the bundled table's faces (1-based in the file), with its repeated faces removed (the file
+    repeats two triangles 5 and 6 times: 177 rows, 168 distinct). The table's fan around polarized light 78 (raw
+    row 322) was built with that light at the duplicated position of row 197; with the restored position, the
+    triangulation of the actual directions is ``source="hull"`` (their convex hull, 166 faces), which shares 156
+    faces with the table.
+
+    Args:
+        source: ``"table"`` or ``"hull"``.
+
+    Returns:
+        0-based indices [F, 3] into ``light_stage_x("polarized")``.
     """
     pos = np.asarray(light_stage_x("polarized").position, np.float64)
     if source == "table":

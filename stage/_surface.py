@@ -130,18 +130,21 @@ def _texel_hits(tc, F, h: int, w: int, batch: int):
 
 
 def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surface:
-    """Rasterise the UV atlas: one sample per texel whose centre falls inside a
-    UV triangle (first triangle wins where charts overlap).
+    """Rasterise a mesh's UV atlas: one sample per texel whose centre falls inside a UV triangle.
 
-    Position and normal are interpolated barycentrically; the tangent is dP/du
-    of the triangle (Gram-Schmidt against the normal); the area is the
-    triangle's world-to-UV area ratio times the texel's UV area.
+    The first triangle wins where charts overlap. Position and normal are interpolated barycentrically; the tangent
+    is dP/du of the triangle (Gram-Schmidt against the normal); the area is the triangle's world-to-UV area ratio
+    times the texel's UV area. Memory: the triangles' bounding-box texels are tested ``_CANDIDATE_BATCH`` (2^20) at
+    a time and the samples interpolated ``_SAMPLE_BATCH`` (2^18) at a time, so beyond the result (~70 B a sample)
+    and ~40 B per texel hit (kept to resolve overlaps) the temporaries are bounded by the batch sizes, not by the
+    grid; the result does not depend on them.
 
-    Memory: the triangles' bounding-box texels are tested ``_CANDIDATE_BATCH``
-    (2^20) at a time and the samples interpolated ``_SAMPLE_BATCH`` (2^18) at a
-    time, so beyond the result (~70 B a sample) and ~40 B per texel hit
-    (kept to resolve overlaps) the temporaries are bounded by the batch sizes,
-    not by the grid; the result does not depend on them.
+    Args:
+        mesh: a mesh with UVs.
+        resolution: the texel grid, N (N x N) or (H, W).
+
+    Returns:
+        The ``Surface``.
     """
     if mesh.uv is None:
         raise ValueError(f"mesh '{mesh.name}' has no UV coordinates; texel-space sampling needs them")
