@@ -32,8 +32,17 @@ _TINY = 1e-12
 
 
 def luminance(image: ArrayLike) -> np.ndarray:
-    """Luminance [...] of ``image`` [..., C]: Rec. 709 weights for C = 3 (RGB, linear), the channel mean
-    otherwise (grey, or other channel counts)."""
+    """Luminance of an image: Rec. 709 weights for linear RGB, the channel mean otherwise.
+
+    Args:
+        image: the image [..., C] (C = 3: linear RGB; other channel counts: grey or other).
+
+    Returns:
+        Luminance [...].
+
+    References:
+        ITU-R BT.709 (the luminance coefficients 0.2126, 0.7152, 0.0722).
+    """
     img = np.asarray(image, np.float64)
     if img.ndim < 1:
         raise ValueError(f"image must have a channel axis [..., C], got shape {img.shape}")

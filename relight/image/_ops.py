@@ -14,14 +14,20 @@ _METHODS = ("nearest", "linear", "cubic", "lanczos3")
 def resize_image(
     image: Float[ArrayLike, "H W C"], size: tuple[int, int], method: str = "linear", antialias: bool = True
 ) -> Float[Array, "h w C"]:
-    """Resize ``[H, W, C]`` to ``[h, w, C]`` with pixel centres aligned
-    (``align_corners=False`` in PyTorch terms: output pixel i samples input
-    position (i + 0.5) H / h - 0.5).
+    """Resize an image with pixel centres aligned: output pixel i samples input position (i + 0.5) H / h - 0.5.
 
-    ``antialias=True`` widens the kernel when downsampling (a proper low-pass,
-    needed for previews of maps with a small sun); ``antialias=False`` is plain
-    interpolation, identical to ``torch.nn.functional.interpolate`` /
-    ``kornia.geometry.transform.resize`` with ``antialias=False``.
+    ``align_corners=False`` in PyTorch terms.
+
+    Args:
+        image: the image [H, W, C].
+        size: the output (h, w).
+        method: the interpolation kernel (``jax.image.resize``'s names, e.g. ``"linear"``).
+        antialias: widen the kernel when downsampling (a proper low-pass, needed for previews of maps with a small
+            sun); False: plain interpolation, identical to ``torch.nn.functional.interpolate`` /
+            ``kornia.geometry.transform.resize`` with ``antialias=False``.
+
+    Returns:
+        The image [h, w, C].
     """
     if method not in _METHODS:
         raise ValueError(f"unknown resize method {method!r}; expected one of {_METHODS}")

@@ -9,7 +9,15 @@ import stage
 
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of ``texture`` [H, W, C] at uv [..., 2] (row 0 at v = 1)."""
+    """Bilinear lookup of a texture at uv coordinates (row 0 at v = 1).
+
+    Args:
+        texture: the texture [H, W, C].
+        uv: coordinates [..., 2].
+
+    Returns:
+        Values [..., C].
+    """
     h, w = texture.shape[:2]
     x = np.clip(uv[..., 0] * w - 0.5, 0, w - 1)
     y = np.clip((1 - uv[..., 1]) * h - 0.5, 0, h - 1)
@@ -23,8 +31,18 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 def texture_view(mesh: stage.Mesh, camera: stage.Camera, textures: dict[str, np.ndarray], supersample: int = 2,
                  background: float = 0.0) -> dict[str, np.ndarray]:
-    """Each texture [H, W, C] as the camera sees the mesh, box-filtered from
-    ``supersample``^2 rays per pixel (anti-aliasing). Returns images [h, w, C]."""
+    """Each texture as the camera sees the mesh, box-filtered from ``supersample``^2 rays per pixel (anti-aliasing).
+
+    Args:
+        mesh: the mesh (with UVs).
+        camera: the camera.
+        textures: ``name -> texture`` [H, W, C].
+        supersample: rays per pixel along each axis.
+        background: the value where no ray hits the mesh.
+
+    Returns:
+        ``name -> image`` [h, w, C] at the camera's resolution.
+    """
     hit, face, bary, _ = stage.primary_hits(mesh, camera, supersample)
     uv = np.einsum("hwk,hwkc->hwc", bary, mesh.uv[mesh.faces[np.maximum(face, 0)]])
     s = supersample
@@ -36,9 +54,18 @@ def texture_view(mesh: stage.Mesh, camera: stage.Camera, textures: dict[str, np.
 
 
 def dilate(texture: np.ndarray, valid: np.ndarray, iterations: int = 2) -> np.ndarray:
-    """Fill texels outside the UV charts with the mean of their valid
-    4-neighbours, ``iterations`` times, so bilinear lookups at chart borders
-    do not blend in the empty background (the usual texture-bake padding)."""
+    """Fill texels outside the UV charts with the mean of their valid 4-neighbours, ``iterations`` times.
+
+    So bilinear lookups at chart borders do not blend in the empty background (the usual texture-bake padding).
+
+    Args:
+        texture: the texture [H, W, C].
+        valid: the texels inside the charts, bool [H, W].
+        iterations: rings of texels filled.
+
+    Returns:
+        The padded texture [H, W, C].
+    """
     tex = np.array(texture, dtype=np.float32, copy=True)
     ok = np.array(valid, dtype=bool, copy=True)
     for _ in range(iterations):
@@ -60,8 +87,15 @@ PREVIEW_MIN_PX = 256
 
 
 def upscale_nearest(img: np.ndarray, min_px: int = PREVIEW_MIN_PX) -> np.ndarray:
-    """``img`` [H, W, ...] repeated ``k`` times along H and W, with ``k`` the smallest whole factor that makes
-    its shorter side at least ``min_px`` (1: unchanged)."""
+    """An image repeated k times along H and W, k the smallest whole factor giving a shorter side >= ``min_px``.
+
+    Args:
+        img: the image [H, W, ...].
+        min_px: the smallest shorter side wanted.
+
+    Returns:
+        The image [k H, k W, ...] (k = 1: unchanged).
+    """
     img = np.asarray(img)
     k = max(1, -(-int(min_px) // max(1, min(img.shape[:2]))))
     return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)

@@ -94,12 +94,26 @@ def tonemap(
 
 
 def to_uint8(image: ArrayLike) -> np.ndarray:
-    """[0, 1] float image -> uint8 (round to nearest, values outside [0, 1] clipped, NaN -> 0)."""
+    """A [0, 1] float image as uint8: rounded to nearest, values outside [0, 1] clipped, NaN -> 0.
+
+    Args:
+        image: the float image.
+
+    Returns:
+        The uint8 image, the same shape.
+    """
     x = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0)
     return np.round(np.clip(x, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def to_uint16(image: ArrayLike) -> np.ndarray:
-    """[0, 1] float image -> uint16 (round to nearest, clipped, NaN -> 0)."""
+    """A [0, 1] float image as uint16: rounded to nearest, values outside [0, 1] clipped, NaN -> 0.
+
+    Args:
+        image: the float image.
+
+    Returns:
+        The uint16 image, the same shape.
+    """
     x = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0)
     return np.round(np.clip(x, 0.0, 1.0) * 65535.0).astype(np.uint16)
