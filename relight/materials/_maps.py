@@ -141,12 +141,22 @@ class MaterialMaps(eqx.Module):
 
 def material_maps(surface: stage.Surface, rho_d, rho_s=None, alpha=None, *, normal=None, tangent=None, mfp=None,
                   model=None) -> MaterialMaps:
-    """Build and validate a :class:`MaterialMaps` over ``surface``'s samples.
+    """Build and validate a ``MaterialMaps`` over a surface's samples.
 
-    Omitted maps default to: no specular (rho_s = 0), alpha = 0.3, the
-    surface's own normal and tangent, mfp = 0, and model = GGX if rho_s is given
-    (GGX_ANISO if alpha has two distinct columns), LAMBERT otherwise. alpha may
-    be [P] / [P, 1] (isotropic) or [P, 2]."""
+    Args:
+        surface: the samples the maps describe (P of them).
+        rho_d: diffuse albedo [P, 3] (or broadcastable).
+        rho_s: specular albedo [P] / [P, 1] (None: no specular, 0).
+        alpha: roughness [P] / [P, 1] (isotropic) or [P, 2] (None: 0.3).
+        normal: shading normals [P, 3] (None: the surface's own).
+        tangent: shading tangents [P, 3] (None: the surface's own).
+        mfp: diffuse mean free path (mm) [P, 3] (None: 0).
+        model: the per-sample model index (None: GGX where rho_s is given and positive somewhere, GGX_ANISO if
+            alpha also has two distinct columns, LAMBERT otherwise).
+
+    Returns:
+        The ``MaterialMaps``.
+    """
     P = surface.num_samples
     f = lambda x, c, name: _per_sample(x, P, c, name)  # noqa: E731
     rho_d = f(rho_d, 3, "rho_d")

@@ -127,31 +127,35 @@ def skin_maps(surface: stage.Surface, textures: dict, *, mfp=SKIN_DMFP_MM, regio
               albedo_scale: float = ALBEDO_SCALE, filter: str = "box") -> SkinTruth:
     """Sample skin textures at each sample's uv and build the ground truth.
 
-    ``textures``: ``"albedo"`` [H, W, 3] linear, ``"specular"`` [H, W, 1] in
-    [0, 1], ``"normal"`` [H, W, 3] unit tangent-space vectors, all with row 0
-    at v = 1 (``relight.io.head_skin_textures()`` gives the head scan's).
-
-    ``filter="box"`` averages each texture exactly over the sample's texel
-    footprint on ``surface.resolution``'s grid (a summed-area table, bilinear
-    in its corners, so partial texels count by area): a 64^2 .. 256^2 grid
-    over a 1024^2 texture is not aliased. ``"bilinear"`` interpolates at the
-    uv (use it for surfaces that are not texel grids, e.g. image samples).
-
-    Per sample (see :class:`SkinTruth` for units):
+    Per sample (see ``SkinTruth`` for units):
 
     * rho_d = min(albedo_scale * albedo, ALBEDO_MAX).
-    * rho_s = F0_SKIN * lerp(SPEC_F0_RANGE, s), alpha = lerp(ALPHA_RANGE, s),
-      s = the specular map clipped to [0, 1].
-    * normal = normalize(t nx + b ny + n nz) with the surface's (t, b = n x t,
-      n): the OpenGL (+Y along b) convention; the box-averaged tangent-space
-      vector is renormalised first. tangent = t Gram-Schmidt against it.
-    * mfp = ``mfp`` [3] (mm) times, per region, 1 + (gain - 1) * weight
-      (the largest over the regions of :func:`skin_regions`), so the nose
-      and ears (``region_gain`` = (skin, nose, ears, lips)) scatter farther
-      with smooth transitions.
+    * rho_s = F0_SKIN * lerp(SPEC_F0_RANGE, s), alpha = lerp(ALPHA_RANGE, s), s = the specular map clipped to
+      [0, 1].
+    * normal = normalize(t nx + b ny + n nz) with the surface's (t, b = n x t, n): the OpenGL (+Y along b)
+      convention; the box-averaged tangent-space vector is renormalised first. tangent = t Gram-Schmidt against it.
+    * mfp = ``mfp`` [3] (mm) times, per region, 1 + (gain - 1) * weight (the largest over the regions of
+      ``skin_regions``), so the nose and ears scatter farther with smooth transitions.
 
-    Raises ValueError naming the argument for missing or malformed textures,
-    non-positive mfp / gains / scale, or an unknown filter.
+    Args:
+        surface: the samples.
+        textures: ``"albedo"`` [H, W, 3] linear, ``"specular"`` [H, W, 1] in [0, 1], ``"normal"`` [H, W, 3] unit
+            tangent-space vectors, all with row 0 at v = 1 (``relight.io.head_skin_textures()`` gives the head
+            scan's).
+        mfp: the diffuse mean free path per channel (mm) [3].
+        region_gain: mean-free-path gains of (skin, nose, ears, lips).
+        albedo_scale: factor on the albedo texture.
+        filter: ``"box"`` averages each texture exactly over the sample's texel footprint on
+            ``surface.resolution``'s grid (a summed-area table, bilinear in its corners, so partial texels count by
+            area: a 64^2 .. 256^2 grid over a 1024^2 texture is not aliased); ``"bilinear"`` interpolates at the uv
+            (for surfaces that are not texel grids, e.g. image samples).
+
+    Returns:
+        The ``SkinTruth``.
+
+    Raises:
+        ValueError: naming the argument, for missing or malformed textures, non-positive mfp / gains / scale, or
+            an unknown filter.
     """
     if filter not in FILTERS:
         raise ValueError(f"skin_maps: filter must be one of {FILTERS}, got {filter!r}")
@@ -189,19 +193,26 @@ def skin_maps(surface: stage.Surface, textures: dict, *, mfp=SKIN_DMFP_MM, regio
 
 
 def skin_regions(surface: stage.Surface) -> SkinRegions:
-    """Nose, ears and lips of a head in the stage frame (x right, y up, z toward
-    the front camera, facing +z), found from the sample positions alone:
+    """Nose, ears and lips of a head in the stage frame, found from the sample positions alone.
+
+    The stage frame: x right, y up, z toward the front camera, the head facing +z.
 
     * nose tip: the front-most (largest z) sample;
-    * ears: the lateral extremes (largest and smallest x) within 0.3 x
-      (crown - nose tip) of the nose tip's height; their distance is the head
-      width W that sizes every region;
+    * ears: the lateral extremes (largest and smallest x) within 0.3 x (crown - nose tip) of the nose tip's
+      height; their distance is the head width W that sizes every region;
     * lips: the front-most midline sample 0.10-0.25 W below the nose tip.
 
-    Each region is an ellipsoid about its anchor (shapes in units of W, see
-    ``_NOSE_SHAPE`` etc.) with a smoothstep falloff between normalised radius
-    0.6 and 1.2. Raises ValueError when no ear-height samples are found (not a
-    head in the stage frame).
+    Each region is an ellipsoid about its anchor (shapes in units of W, see ``_NOSE_SHAPE`` etc.) with a
+    smoothstep falloff between normalised radius 0.6 and 1.2.
+
+    Args:
+        surface: samples of a head.
+
+    Returns:
+        The ``SkinRegions``.
+
+    Raises:
+        ValueError: no ear-height samples are found (not a head in the stage frame).
     """
     p = np.asarray(surface.position, np.float64)
     if p.ndim != 2 or p.shape[0] < 3 or not np.all(np.isfinite(p)):
