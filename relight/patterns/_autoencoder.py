@@ -120,12 +120,20 @@ class PatternAutoencoder(eqx.Module):
 
 def grid_features(y: Float[Array, "sample pattern channel"], white: Float[Array, "sample pattern channel"],
                   bases: Float[Array, "sample pattern channel basis"]) -> Float[Array, "sample feature"]:
-    """Closed-form fits of the measurements at each grid roughness alpha_j: the
-    model y[k, c] = rho_c white[k, c] + F0 A_j[k, c] + B_j[k, c] is linear in
-    (rho_r, rho_g, rho_b, F0) (``specular_bases``), so each is a 4-unknown
-    least-squares solve (normal equations, a ridge of 10 ulps of the trace); features per j: the
-    solution and the log relative residual, 5 J in all. What the relight
-    fitter's roughness-grid start computes, here differentiable in the patterns."""
+    """Closed-form fits of the pattern measurements at each grid roughness alpha_j, differentiable in the patterns.
+
+    The model y[k, c] = rho_c white[k, c] + F0 A_j[k, c] + B_j[k, c] is linear in (rho_r, rho_g, rho_b, F0)
+    (``specular_bases``), so each is a 4-unknown least-squares solve (normal equations, a ridge of 10 ulps of the
+    trace). What the relight fitter's roughness-grid start computes.
+
+    Args:
+        y: measurements [N, K, C].
+        white: a white Lambertian sample's measurements [N, K, C].
+        bases: the specular bases measured [N, K, C, 2J].
+
+    Returns:
+        Features [N, 5J]: per j the solution and the log relative residual.
+    """
     A, B = bases[..., 0::2], bases[..., 1::2]  # [N, K, C, J]
     s = jnp.mean(white, axis=(1, 2), keepdims=True)  # one scale per sample: ~unit entries
     w, A, B, r = white / s, A / s[..., None], B / s[..., None], (y / s)[..., None] - B / s[..., None]
@@ -155,16 +163,37 @@ def grid_features(y: Float[Array, "sample pattern channel"], white: Float[Array,
 
 def measure(patterns: Float[Array, "pattern light"],
             radiance: Float[Array, "*batch light channel"]) -> Float[Array, "*batch pattern channel"]:
-    """y[..., k, c] = sum_l W[k, l] m[..., l, c]: pattern measurements of lumitexels."""
+    """Pattern measurements of lumitexels, y[..., k, c] = sum_l W[k, l] m[..., l, c].
+
+    Args:
+        patterns: light weights W [K, L].
+        radiance: lumitexels m [*batch, L, C].
+
+    Returns:
+        Measurements [*batch, K, C].
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder", eq. 1.
+    """
     radiance = jnp.asarray(radiance)
     return jnp.einsum("kl,...lc->...kc", jnp.asarray(patterns, radiance.dtype), radiance)
 
 
 def sensor_noise(key, y: Float[Array, "*batch channel"], sensor: stage.Sensor) -> Float[Array, "*batch channel"]:
-    """y plus Gaussian noise of the sensor's variance per frame (``stage.Sensor``:
-    shot noise exposure x y photo-electrons if enabled, read noise, quantisation),
-    in radiance units: std = sqrt(Var[DN]) gain / (wb exposure). Differentiable
-    in y (reparameterised), so the patterns learn the noise they will meet."""
+    """Measurements plus Gaussian noise of the sensor's variance per frame, in radiance units.
+
+    The variance of ``stage.Sensor``: shot noise (exposure x y photo-electrons) if enabled, read noise,
+    quantisation; std = sqrt(Var[DN]) gain / (wb exposure). Differentiable in y (reparameterised), so the patterns
+    learn the noise they will meet.
+
+    Args:
+        key: a ``jax.random`` key.
+        y: measurements [*batch, C].
+        sensor: the camera sensor.
+
+    Returns:
+        Noisy measurements [*batch, C].
+    """
     y = jnp.asarray(y)
     var_dn = sensor.variance(jnp.maximum(y, 0.0))
     # Radiance per DN: gain / (wb exposure), read off the sensor's own inverse.
@@ -175,8 +204,15 @@ def sensor_noise(key, y: Float[Array, "*batch channel"], sensor: stage.Sensor) -
 
 def lumitexel_target(radiance: Float[Array, "sample light channel"],
                      white: Float[Array, "sample light channel"]) -> Float[Array, "sample light"]:
-    """The lumitexel decoder's target: asinh of the grey lumitexel over the
-    sample's mean white OLAT radiance (over its lit lights)."""
+    """The lumitexel decoder's target: asinh of the grey lumitexel over the sample's mean white OLAT radiance.
+
+    Args:
+        radiance: lumitexels [N, L, C].
+        white: a white Lambertian sample's lumitexels [N, L, C] (the mean is over its lit lights).
+
+    Returns:
+        Targets [N, L].
+    """
     grey = jnp.mean(radiance, axis=-1)
     w = jnp.mean(white, axis=-1)
     s = jnp.sum(w, axis=1, keepdims=True) / jnp.maximum(jnp.sum(w > 0, axis=1, keepdims=True), 1).astype(w.dtype)

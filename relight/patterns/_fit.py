@@ -45,13 +45,22 @@ def _views(pcapture: stage.PatternCapture) -> np.ndarray:
 
 def decoder_start(pcapture: stage.PatternCapture, surface: stage.Surface, light_visibility,
                   model: PatternAutoencoder, *, chunk: int = _DECODE_CHUNK) -> dict[str, np.ndarray]:
-    """The decoder's material per sample from a pattern capture:
-    {"rho_d" [P, 3], "rho_s" [P] (Schlick F0), "alpha" [P]} (NumPy float32),
-    the ``start`` that ``relight.fitting.fit_patterns`` takes. Each sample is
-    read in the first view that sees it; ``light_visibility`` [P, L] bool (or a
-    ``stage.PackedMask``) the shadowing the decoder's white-Lambertian
-    normaliser uses. ``model`` must have been trained for this capture's
-    patterns (ValueError naming ``model`` otherwise)."""
+    """The decoder's Lambert + GGX material per sample from a pattern capture.
+
+    Each sample is read in the first view that sees it.
+
+    Args:
+        pcapture: the pattern capture.
+        surface: its samples.
+        light_visibility: bool [P, L] (or a ``stage.PackedMask``), the shadowing the decoder's white-Lambertian
+            normaliser uses.
+        model: an autoencoder trained for this capture's patterns (ValueError naming ``model`` otherwise).
+        chunk: samples decoded at a time.
+
+    Returns:
+        ``{"rho_d" [P, 3], "rho_s" [P] (Schlick F0), "alpha" [P]}`` (NumPy float32), the ``start`` that
+        ``relight.fitting.fit_patterns`` takes.
+    """
     W = np.asarray(pcapture.patterns, np.float32)
     if W.shape != tuple(model.logits.shape) or not np.allclose(W, np.asarray(model.patterns), atol=1e-5):
         raise ValueError(f"decoder_start: argument 'model' was not trained for this capture's patterns "
@@ -88,11 +97,24 @@ def decoder_start(pcapture: stage.PatternCapture, surface: stage.Surface, light_
 
 def fit_learned(pcapture: stage.PatternCapture, surface: stage.Surface, light_visibility,
                 model: PatternAutoencoder, **fit_options) -> Fit:
-    """Fit Lambert + GGX per sample to a learned-pattern capture: the
-    decoder's estimate (:func:`decoder_start`) as the start of
-    ``relight.fitting.fit_patterns(pcapture, surface, light_visibility,
-    model="ggx", start=...)`` (``fit_options`` passed on: ``normals``,
-    ``solver``, ``chunk``, ``steps_per_round``, ``rounds``, ``progress``).
-    The decoder alone is :func:`decoder_start`."""
+    """Fit Lambert + GGX per sample to a learned-pattern capture, starting from the decoder's estimate.
+
+    ``relight.fitting.fit_patterns(pcapture, surface, light_visibility, model="ggx", start=decoder_start(...))``;
+    the decoder alone is ``decoder_start``.
+
+    Args:
+        pcapture: the pattern capture.
+        surface: its samples.
+        light_visibility: bool [P, L] (or a ``stage.PackedMask``).
+        model: an autoencoder trained for this capture's patterns.
+        **fit_options: passed on to ``fit_patterns``: ``normals``, ``solver``, ``chunk``, ``steps_per_round``,
+            ``rounds``, ``progress``.
+
+    Returns:
+        The ``Fit``.
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder".
+    """
     start = decoder_start(pcapture, surface, light_visibility, model)
     return fit_patterns(pcapture, surface, light_visibility, model="ggx", start=start, **fit_options)

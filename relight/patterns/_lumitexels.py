@@ -102,7 +102,16 @@ class Lumitexels(eqx.Module):
 
 
 def geometry_features(normal, wo, position) -> Float[Array, "sample 9"]:
-    """[n, wo, p / 200 mm] per sample: what the light stage knows from the scanned mesh."""
+    """What the light stage knows of each sample from the scanned mesh: [n, wo, p / 200 mm].
+
+    Args:
+        normal: unit normals [P, 3].
+        wo: unit directions toward the camera [P, 3].
+        position: positions (mm) [P, 3].
+
+    Returns:
+        Features [P, 9].
+    """
     p = jnp.asarray(position)
     return jnp.concatenate([jnp.asarray(normal, p.dtype), jnp.asarray(wo, p.dtype), p / 200.0], axis=-1)
 
@@ -120,7 +129,17 @@ def _cap(key, axis, max_deg, n):
 
 
 def sample_materials(key, n: int, ranges: ParameterRanges = TRAIN_RANGES, dtype=jnp.float32):
-    """(rho_d [n, 3], rho_s [n], alpha [n]) drawn from ``ranges`` (see ParameterRanges)."""
+    """Random Lambert + GGX materials drawn from ``ranges`` (see ``ParameterRanges``).
+
+    Args:
+        key: a ``jax.random`` key.
+        n: the number of samples.
+        ranges: the parameter ranges.
+        dtype: the float dtype.
+
+    Returns:
+        (rho_d [n, 3], rho_s [n], alpha [n]).
+    """
     k1, k2, k3, k4 = jax.random.split(key, 4)
     u = lambda k, shape, lo, hi: lo + (hi - lo) * jax.random.uniform(k, shape, dtype)  # noqa: E731
     rho_d = u(k1, (n, 3), *ranges.rho_d)
@@ -130,9 +149,18 @@ def sample_materials(key, n: int, ranges: ParameterRanges = TRAIN_RANGES, dtype=
 
 
 def sample_geometry(key, n: int, camera_center, ranges: ParameterRanges = TRAIN_RANGES, dtype=jnp.float32):
-    """(position [n, 3] mm, normal [n, 3], wo [n, 3]): positions uniform in the
-    ball of ``ranges.radius_mm``, view directions toward ``camera_center`` [3]
-    (mm), normals uniform on the cap of ``ranges.max_view_deg`` about wo."""
+    """Random sample geometry: positions uniform in a ball, normals uniform on a cap about the view direction.
+
+    Args:
+        key: a ``jax.random`` key.
+        n: the number of samples.
+        camera_center: the camera's position (mm) [3]; the view directions point toward it.
+        ranges: ``radius_mm`` (the ball) and ``max_view_deg`` (the cap about wo).
+        dtype: the float dtype.
+
+    Returns:
+        (position [n, 3] mm, normal [n, 3], wo [n, 3]).
+    """
     k1, k2, k3 = jax.random.split(key, 3)
     d = safe_normalize(jax.random.normal(k1, (n, 3), dtype))
     r = ranges.radius_mm * jax.random.uniform(k2, (n, 1), dtype) ** (1.0 / 3.0)
@@ -154,9 +182,21 @@ def _local_lighting(rig: stage.Rig, position, normal, tangent, bitangent, wo):
 
 def lumitexels(rig: stage.Rig, position, normal, tangent, bitangent, wo, rho_d, rho_s, alpha,
                visible=None) -> tuple[Array, Array, Array]:
-    """(radiance [N, L, C], white [N, L, C], lit [N, L]) of Lambert + GGX samples
-    through stage's forward model (module docstring). ``visible`` [N, L]
-    (optional): the light visibility (shadowing), combined with the horizon."""
+    """Lumitexels of Lambert + GGX samples through stage's forward model (module docstring).
+
+    Args:
+        rig: the light rig.
+        position, normal, tangent, bitangent: each sample's position (mm) and frame, [N, 3].
+        wo: unit directions toward the camera, [N, 3].
+        rho_d, rho_s, alpha: the materials, [N, 3], [N], [N].
+        visible: the light visibility (shadowing) [N, L], combined with the horizon (None: no shadowing).
+
+    Returns:
+        (radiance [N, L, C], white [N, L, C], lit [N, L]).
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder".
+    """
     dt = jnp.asarray(position).dtype
     c = lambda x: jnp.asarray(x, dt)  # noqa: E731
     wi, wo_l, irr = _local_lighting(rig, position, normal, tangent, bitangent, wo)
@@ -176,12 +216,22 @@ ALPHA_GRID = (0.08, 0.14, 0.25, 0.45, 0.8)
 
 def specular_bases(rig: stage.Rig, position, normal, tangent, bitangent, wo, lit,
                    alphas=ALPHA_GRID) -> Float[Array, "sample light channel basis"]:
-    """The GGX lobe's lumitexels at the roughnesses ``alphas`` (J of them), split
-    by Schlick's Fresnel being affine in F0, F = F0 (1 - s) + s with s = (1 - cos)^5:
-    basis 2j = lobe(F0 = 1) - lobe(F0 = 0) (the F0 coefficient), basis 2j + 1 =
-    lobe(F0 = 0) (the offset). So a Lambert + GGX(alpha_j) lumitexel is exactly
-    rho_d white + F0 basis_2j + basis_2j+1. ``lit`` [N, L] the light visibility.
-    Shape [N, L, C, 2J] (C = the rig's channels)."""
+    """The GGX lobe's lumitexels at the roughnesses ``alphas``, split by Schlick's Fresnel being affine in F0.
+
+    F = F0 (1 - s) + s with s = (1 - cos)^5: basis 2j = lobe(F0 = 1) - lobe(F0 = 0) (the F0 coefficient), basis
+    2j + 1 = lobe(F0 = 0) (the offset). So a Lambert + GGX(alpha_j) lumitexel is exactly
+    rho_d white + F0 basis_2j + basis_2j+1.
+
+    Args:
+        rig: the light rig.
+        position, normal, tangent, bitangent: each sample's position (mm) and frame, [N, 3].
+        wo: unit directions toward the camera, [N, 3].
+        lit: the light visibility [N, L].
+        alphas: the J roughnesses.
+
+    Returns:
+        Bases [N, L, C, 2J] (C = the rig's channels).
+    """
     dt = jnp.asarray(position).dtype
     wi, wo_l, irr = _local_lighting(rig, position, normal, tangent, bitangent, wo)
     vis = jnp.asarray(lit).T & (wi[..., 2] > 0)
@@ -210,9 +260,24 @@ def _occluders(key, n, normal, lights_dir, ranges: ParameterRanges):
 
 def simulate_lumitexels(key, rig: stage.Rig, camera_center, n: int, ranges: ParameterRanges = TRAIN_RANGES,
                         dtype=jnp.float32) -> Lumitexels:
-    """n random samples (materials and geometry from ``ranges``, seeded by
-    ``key``) and their lumitexels under ``rig`` seen from ``camera_center`` [3]
-    (mm). Pure JAX: jit it with ``n`` and ``ranges`` static for training."""
+    """n random samples (materials and geometry from ``ranges``) and their lumitexels under ``rig``.
+
+    Pure JAX: jit it with ``n`` and ``ranges`` static for training.
+
+    Args:
+        key: a ``jax.random`` key.
+        rig: the light rig.
+        camera_center: the camera's position (mm) [3].
+        n: the number of samples.
+        ranges: the parameter ranges.
+        dtype: the float dtype.
+
+    Returns:
+        The ``Lumitexels``.
+
+    References:
+        Kang et al. 2018, "Efficient reflectance capture using an autoencoder".
+    """
     km, kg, ko = jax.random.split(key, 3)
     rho_d, rho_s, alpha = sample_materials(km, n, ranges, dtype)
     position, normal, wo = sample_geometry(kg, n, camera_center, ranges, dtype)
@@ -228,8 +293,14 @@ def simulate_lumitexels(key, rig: stage.Rig, camera_center, n: int, ranges: Para
 
 
 def as_surface(lumi: Lumitexels) -> stage.Surface:
-    """The samples as a ``stage.Surface`` of independent texels (for
-    ``stage.simulate``, ``stage.simulate_patterns`` and the fitters)."""
+    """The samples as a ``stage.Surface`` of independent texels (for ``stage.simulate``, ``stage.simulate_patterns``).
+
+    Args:
+        lumi: the lumitexels.
+
+    Returns:
+        The ``Surface``.
+    """
     P = lumi.num_samples
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return stage.Surface(position=f(lumi.position), normal=f(lumi.normal), tangent=f(lumi.tangent),
@@ -239,7 +310,15 @@ def as_surface(lumi: Lumitexels) -> stage.Surface:
 
 
 def as_capture(lumi: Lumitexels, rig: stage.Rig, camera: stage.Camera) -> stage.Capture:
-    """The lumitexels as a one-view OLAT ``stage.Capture`` [1, L, N, C] (mask:
-    lit and front-facing), ``camera`` the one they were seen from."""
+    """The lumitexels as a one-view OLAT ``stage.Capture`` [1, L, N, C], masked where lit and front-facing.
+
+    Args:
+        lumi: the lumitexels.
+        rig: the light rig.
+        camera: the camera they were seen from.
+
+    Returns:
+        The ``Capture``.
+    """
     rad = jnp.swapaxes(jnp.asarray(lumi.radiance, jnp.float32), 0, 1)[None]
     return stage.Capture(radiance=rad, mask=jnp.swapaxes(lumi.visible, 0, 1)[None], rig=rig, cameras=(camera,))
