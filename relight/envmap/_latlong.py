@@ -249,11 +249,17 @@ def envmap_irradiance(
 
 
 def load_envmap(path: str | os.PathLike) -> EnvMap:
-    """Read a lat-long environment map from ``.hdr`` (Radiance RGBE), ``.exr`` or
-    ``.pfm``; returns an :class:`EnvMap` with float32 RGB radiance.
+    """Read a lat-long environment map from ``.hdr`` (Radiance RGBE), ``.exr`` or ``.pfm``.
 
-    Raises (naming the file): an unknown extension, a width that is not twice
-    the height, NaN/Inf or negative radiance, or any read error.
+    Args:
+        path: the map file.
+
+    Returns:
+        An ``EnvMap`` with float32 RGB radiance.
+
+    Raises:
+        ImageFormatError (a ValueError): naming the file, for an unknown extension, a width that is not twice the
+            height, NaN/Inf or negative radiance, or any read error.
     """
     from ..io._errors import ImageFormatError, check_radiance
     from ..io._exr import read_exr
