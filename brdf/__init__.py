@@ -2,9 +2,6 @@
 safe under jax.jit, jax.vmap and jax.grad. See docs/brdf.md."""
 
 from . import check as check
-from ._atomic import atomic_path as atomic_path
-from ._atomic import atomic_write_bytes as atomic_write_bytes
-from ._atomic import atomic_write_text as atomic_write_text
 from ._base import AbstractBRDF as AbstractBRDF
 from ._base import ParamSpec as ParamSpec
 from ._base import from_unconstrained as from_unconstrained
@@ -36,7 +33,6 @@ from ._fresnel import SchlickFresnel as SchlickFresnel
 from ._fresnel import fresnel_complex as fresnel_complex
 from ._fresnel import fresnel_conductor as fresnel_conductor
 from ._fresnel import fresnel_dielectric as fresnel_dielectric
-from ._fresnel import fresnel_schlick as fresnel_schlick
 from ._fresnel import fresnel_transmittance as fresnel_transmittance
 from ._fresnel import schlick as schlick
 from ._ggx import GGX as GGX
@@ -60,7 +56,6 @@ from ._merl import merl_bin_centers as merl_bin_centers
 from ._merl import merl_index as merl_index
 from ._merl import read_merl as read_merl
 from ._merl import tabulate_merl as tabulate_merl
-from ._merl import write_merl as write_merl
 from ._microfacet import Microfacet as Microfacet
 from ._microfacet import lambert_ggx as lambert_ggx
 from ._microfacet import smith_g2_height_correlated_over_cos as smith_g2_height_correlated_over_cos

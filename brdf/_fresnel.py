@@ -30,9 +30,6 @@ def schlick(cos_theta: Float[ArrayLike, "*#shape"], f0: Float[ArrayLike, "*#shap
     return f0 + (1.0 - f0) * (m2 * m2 * m)
 
 
-# The name the Fresnel family had first; the same function.
-fresnel_schlick = schlick
-
 
 def fresnel_dielectric(
     cos_theta: Float[ArrayLike, "*#shape"], eta: Float[ArrayLike, "*#shape"]

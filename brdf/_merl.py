@@ -1,12 +1,13 @@
 """Measured BRDFs in the MERL binary format (Matusik et al. 2003): the
 Rusinkiewicz half/difference parameterisation, the format's indexing, a reader,
-an atomic writer, tabulation of analytic models and tabulated evaluation.
+tabulation of analytic models and tabulated evaluation.
 
 File layout (MERL's BRDFRead.cpp): three little-endian int32 (90, 90, 180), then
 3 x 90 x 90 x 180 little-endian float64, channel-major (all red, all green, all
 blue), each channel stored divided by its scale (1/1500, 1.15/1500, 1.66/1500).
 Axes: theta_h (square-root bins), theta_d, phi_d in [0, pi) (reciprocity folds
 phi_d + pi onto phi_d). Negative stored values mark missing measurements.
+The writer is ``relight.io.write_merl`` (brdf writes no files).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._atomic import atomic_write_bytes
 from ._base import AbstractBRDF, ParamSpec, check_directions, cos_theta
 from ._safe import dot, safe_atan2, safe_sqrt, working_float
 
@@ -129,25 +129,6 @@ def tabulate_merl(model, dtype=jnp.float64, chunk: int = 90) -> Float[Array, "3 
 
     parts = [rows(model, th[s : s + chunk]) for s in range(0, MERL_RES[0], chunk)]
     return jnp.moveaxis(jnp.concatenate(parts, axis=0), -1, 0)
-
-
-def write_merl(path: str | os.PathLike, table) -> None:
-    """Write a table [3, 90, 90, 180] of f_r (1/sr; negative = missing) as a MERL
-    .binary file, atomically (``brdf.atomic_write_bytes``: a temporary file in the
-    same folder, then rename; the file gets the permissions ``open`` would give)."""
-    path = Path(path)
-    t = np.asarray(table, dtype=np.float64)
-    if t.shape != (3,) + MERL_RES:
-        raise ValueError(f"write_merl({path}): table must have shape (3, 90, 90, 180), got {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise ValueError(f"write_merl({path}): table has non-finite values")
-    stored = t / np.asarray(MERL_SCALE)[:, None, None, None]
-
-    def write(fh):
-        fh.write(np.asarray(MERL_RES, dtype="<i4").tobytes())
-        fh.write(stored.astype("<f8").tobytes(order="C"))
-
-    atomic_write_bytes(path, write)
 
 
 def read_merl(path: str | os.PathLike, interpolation: str = "nearest") -> MERL:

@@ -13,12 +13,14 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test's import graph
     from . import envmap as envmap
+    from . import export as export
     from . import fitting as fitting
     from . import image as image
     from . import io as io
     from . import materials as materials
     from . import patterns as patterns
     from . import render as render
+    from . import results as results
     from . import view as view
     from .fitting import ALPHA_FIT_MIN as ALPHA_FIT_MIN
     from .fitting import LOSSES as LOSSES
@@ -38,7 +40,7 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from .materials import material_maps as material_maps
     from .materials import phong_exponent as phong_exponent
 
-_SUBPACKAGES = ("envmap", "fitting", "image", "io", "materials", "patterns", "render", "view")
+_SUBPACKAGES = ("envmap", "export", "fitting", "image", "io", "materials", "patterns", "render", "results", "view")
 # name -> the subpackage that defines it
 _NAMES = {
     "ALPHA_FIT_MIN": "fitting",

@@ -24,6 +24,9 @@ from ._forward import reflected_radiance_lights as reflected_radiance_lights
 from ._forward import subsurface_exitance as subsurface_exitance
 from ._forward import subsurface_irradiance as subsurface_irradiance
 from ._forward import to_local as to_local
+from ._framing import FRONT_FOV_DEG as FRONT_FOV_DEG
+from ._framing import front_camera as front_camera
+from ._framing import front_ring as front_ring
 from ._gradient import PATTERNS as PATTERNS
 from ._gradient import diffuse_normals as diffuse_normals
 from ._gradient import gradient_images as gradient_images

@@ -31,8 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from brdf import atomic_write_text, safe_div, safe_normalize
+from brdf import safe_div, safe_normalize
 
+from ._atomic import atomic_write_text
 from ._files import read_json
 from ._mesh import MAX_COORDINATE_MM
 
@@ -271,7 +272,7 @@ def camera_from_dict(doc: object, where: str = "camera") -> Camera:
 
 def save_cameras(path, cameras, names=None) -> Path:
     """Write cameras to a JSON camera file (module docstring schema), atomically
-    (``brdf.atomic_write_text``). Names default to cam000, cam001, ..."""
+    (``stage._atomic``). Names default to cam000, cam001, ..."""
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
     path = Path(path)
     names = list(names) if names is not None else [f"cam{i:03d}" for i in range(len(cameras))]

@@ -13,7 +13,7 @@ frame per pattern, every light at its weight (docs/pattern_files.md)::
 
 The lights' positions are those of the rig the patterns were made for, so a
 file is refused on a rig whose lights are elsewhere (or number differently).
-Written atomically (``brdf.atomic_write_text``); every reading error names
+Written atomically (``stage._atomic``); every reading error names
 the file and the field.
 """
 
@@ -28,8 +28,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from brdf import atomic_write_text
-
+from ._atomic import atomic_write_text
 from ._files import read_json
 from ._mesh import MAX_COORDINATE_MM
 from ._patterns import check_patterns

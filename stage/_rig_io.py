@@ -24,8 +24,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from brdf import atomic_write_text
-
+from ._atomic import atomic_write_text
 from ._files import read_json
 from ._mesh import MAX_COORDINATE_MM
 from ._rig import Rig, make_rig
@@ -119,7 +118,7 @@ def rig_from_dict(doc: object, where: str = "rig") -> Rig:
 
 
 def save_rig(path, rig: Rig) -> Path:
-    """Write ``rig`` to a JSON rig file, atomically (``brdf.atomic_write_text``)."""
+    """Write ``rig`` to a JSON rig file, atomically (``stage._atomic``)."""
     path = Path(path)
     atomic_write_text(path, json.dumps(rig_to_dict(rig), indent=2, allow_nan=False) + "\n")
     return path

@@ -17,8 +17,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from brdf import atomic_write_bytes
-
+from ._atomic import atomic_write_bytes
 from ._camera import Camera
 from ._mesh import Mesh
 from ._progress import Phase
@@ -64,7 +63,7 @@ class PackedMask:
         return a if dtype is None else a.astype(dtype)
 
     def save(self, path) -> None:
-        """Write to an .npz file atomically (``brdf.atomic_write_bytes``)."""
+        """Write to an .npz file atomically (``stage._atomic``)."""
         atomic_write_bytes(path, lambda fh: np.savez_compressed(fh, bits=self.bits, n=np.int64(self.n)))
 
     @classmethod

@@ -41,11 +41,11 @@ THIRD_PARTY = {
 }
 
 # (d) relight's layering (docs/ARCHITECTURE.md): a subpackage imports only subpackages of a lower layer, so
-# image and materials import none, io may use image and materials, envmap io (to read map files), fitting and
-# render everything below them but not each other, patterns (learned lighting) and view (the results viewer)
-# everything below them but not each other, and cli all.
-LAYER = {"image": 0, "materials": 0, "io": 1, "envmap": 2, "fitting": 3, "render": 3, "patterns": 4, "view": 4,
-         "cli": 5}
+# image, materials and results (result sets, atomic writes) import none, io may use them, envmap and export
+# (exporters) io, fitting and render everything below them but not each other, patterns (learned lighting)
+# and view (the results viewer) everything below them but not each other, and cli all.
+LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "export": 2, "fitting": 3, "render": 3,
+         "patterns": 4, "view": 4, "cli": 5}
 
 
 @dataclass(frozen=True)

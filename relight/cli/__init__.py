@@ -104,7 +104,8 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_usage(sys.stderr)
         return 2
-    from ._common import CLIError, cache_dir, compile_cache
+    from ._cache import cache_dir, compile_cache
+    from ._guard import CLIError
 
     try:
         # Before the command compiles anything: the cache is looked up at each compile.

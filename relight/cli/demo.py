@@ -174,13 +174,13 @@ def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_
     """Run the whole demo into ``out``; returns the report as a dict. ``index``: also write index.html (the
     results viewer, with the capture relit image-based under a rotation sweep)."""
     import stage
-    from brdf import atomic_write_text
 
     from ..envmap import load_envmap
     from ..fitting import fit_with_subsurface
     from ..io import head_skin_textures, texture_set, write_texture_set
     from ..materials import MODELS, skin_maps
     from ..render import render_view
+    from ..results import atomic_write_text
 
     out = Path(out)
     from ._common import check_out, envmap_path, output_set

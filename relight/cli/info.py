@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import guarded
+from ._guard import guarded
 
 
 def add_parser(sub) -> None:

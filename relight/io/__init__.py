@@ -2,7 +2,8 @@
 folders and DiLiGenT-style multi-light data, camera-space photo captures
 (docs/capture_layout.md), texture sets, and texel-space
 captures and map sets back to ``stage`` objects (``load_texel_capture``,
-``load_texel_maps``). All writes are atomic (``brdf.atomic_path``); bad input
+``load_texel_maps``), MERL measured BRDFs (``write_merl``). All writes are atomic
+(``relight.results.atomic_path``; output folders are ``relight.results`` result sets); bad input
 raises ``ImageFormatError`` (a ``ValueError``) naming the file and the problem.
 See docs/relight_io.md for the formats and conventions."""
 
@@ -38,8 +39,7 @@ from ._hdr import write_hdr as write_hdr
 from ._json import jsonable as jsonable
 from ._json import read_json as read_json
 from ._json import write_json as write_json
-from ._mitsuba import mitsuba_envmap as mitsuba_envmap
-from ._mitsuba import write_mitsuba_scene as write_mitsuba_scene
+from ._merl import write_merl as write_merl
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
 from ._photo_texels import PhotoTexelReport as PhotoTexelReport
@@ -51,14 +51,9 @@ from ._photos import read_photo_capture as read_photo_capture
 from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
+from ._previews import write_map_previews as write_map_previews
+from ._previews import write_preview as write_preview
 from ._regions import read_regions as read_regions
-from ._resultset import FolderLockedError as FolderLockedError
-from ._resultset import ForeignFolderError as ForeignFolderError
-from ._resultset import NoSpaceError as NoSpaceError
-from ._resultset import ResultSetError as ResultSetError
-from ._resultset import WriteError as WriteError
-from ._resultset import open_result_set as open_result_set
-from ._resultset import result_set as result_set
 from ._source import ArraySource as ArraySource
 from ._source import CaptureSource as CaptureSource
 from ._source import capture_source as capture_source
@@ -123,13 +118,6 @@ __all__ = [
     "MAX_RADIANCE",
     "MAX_PATH_CHARS",
     "MAX_IMAGE_PIXELS",
-    "FolderLockedError",
-    "ForeignFolderError",
-    "NoSpaceError",
-    "ResultSetError",
-    "WriteError",
-    "open_result_set",
-    "result_set",
     "PhotoCapture",
     "PhotoTexelReport",
     "PhotoView",
@@ -177,11 +165,12 @@ __all__ = [
     "write_hdr",
     "write_json",
     "write_maps",
-    "mitsuba_envmap",
-    "write_mitsuba_scene",
+    "write_merl",
     "write_pfm",
     "write_photo_capture",
     "write_png",
+    "write_map_previews",
+    "write_preview",
     "write_texture_set",
     "write_texture_set_files",
 ]

@@ -40,10 +40,11 @@ import numpy as np
 
 import stage
 
+from ..results import MANIFEST, open_result_set, swap_into
+from ..results import folder_mode as _folder_mode
 from ._errors import ImageFormatError, check_image_size, check_radiance, format_version, path_inside, path_template
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
-from ._resultset import MANIFEST, _folder_mode, open_result_set, swap_into
 
 __all__ = ["CaptureData", "CaptureReader", "open_capture", "read_capture", "write_capture"]
 
@@ -114,7 +115,7 @@ def _count(info: Mapping, key: str, where) -> int:
 def _atomic_folder(folder: Path) -> Iterator[Path]:
     """Yield a temporary folder next to ``folder`` (mode 0o777 less the umask);
     on success swap it into place with the result sets' one folder swap
-    (:func:`relight.io._resultset.swap_into`: an atomic exchange, or the old
+    (:func:`relight.results.swap_into`: an atomic exchange, or the old
     capture moved aside, then deleted). Single files go through ``brdf.atomic_path``."""
     parent = folder.parent if str(folder.parent) else Path(".")
     if not parent.is_dir():

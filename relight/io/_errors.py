@@ -14,6 +14,8 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from ..results import format_version as _format_version
+
 __all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_image_size",
            "check_radiance", "path_inside", "path_template"]
 
@@ -98,15 +100,15 @@ def path_template(template: object, fields: Mapping[str, object], required: tupl
 
 def format_version(doc: Mapping, where: object, newest: int, default: int | None = None,
                    error: type[ValueError] = ImageFormatError) -> int:
-    """The ``version`` field of a file's JSON object ``doc``: a positive JSON integer (not a bool or a
-    string) no newer than ``newest``, the version this reader knows; ``default`` when the field is absent
-    (None: it is required). Raises ``error`` naming ``where`` otherwise."""
-    version = doc.get("version", default)
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise error(f"{where}: field 'version' must be a positive integer, got {version!r}")
-    if version > newest:
-        raise error(f"{where}: format version {version} is newer than this reader ({newest})")
-    return version
+    """``relight.results.format_version`` raising :class:`ImageFormatError` by default.
+
+    Args:
+        doc, where, newest, default, error: as ``relight.results.format_version``'s.
+
+    Returns:
+        The file's format version.
+    """
+    return _format_version(doc, where, newest, default, error)
 
 
 def check_image_size(path: str | os.PathLike, height: int, width: int, channels: int = 1,

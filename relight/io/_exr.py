@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from ._atomic import atomic_path
+from ..results import atomic_path
 from ._errors import ImageFormatError, check_image_size
 
 __all__ = [

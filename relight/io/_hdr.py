@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_write_bytes
+from ..results import atomic_write_bytes
 from ._errors import ImageFormatError, check_image_size
 
 __all__ = ["RGBE_MAX", "read_hdr", "read_hdr_header", "write_hdr"]

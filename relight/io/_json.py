@@ -11,8 +11,8 @@ from collections.abc import Mapping
 import numpy as np
 
 import stage
-from brdf import atomic_write_text
 
+from ..results import atomic_write_text
 from ._errors import ImageFormatError
 
 __all__ = ["jsonable", "read_json", "write_json"]

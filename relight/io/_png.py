@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import png
 
-from ._atomic import atomic_write_bytes
+from ..results import atomic_write_bytes
 from ._errors import ImageFormatError, check_image_size
 
 __all__ = ["read_png", "write_png"]

@@ -57,6 +57,8 @@ import numpy as np
 
 import stage
 
+from ..results import MANIFEST as RESULT_MANIFEST
+from ..results import open_result_set, swap_into
 from ._capture import _FILES as _FOLDER_FILES
 from ._capture import _FORMAT as _FOLDER_FORMAT
 from ._capture import _VERSION as _FOLDER_VERSION
@@ -64,8 +66,6 @@ from ._capture import _atomic_folder, _rig_light_count, open_capture
 from ._errors import ImageFormatError, check_radiance, path_inside
 from ._exr import write_exr_channels
 from ._json import jsonable, read_json, write_json
-from ._resultset import MANIFEST as RESULT_MANIFEST
-from ._resultset import open_result_set, swap_into
 
 __all__ = ["CaptureStore", "CaptureStoreError", "CaptureStoreWriter", "StoreChangedError", "capture_folder_to_store",
            "is_capture_store", "open_capture_store", "store_to_capture_folder", "write_capture_store"]

@@ -36,7 +36,7 @@ tells fitted texels from padding.
 what reading the files back gives); ``write_texture_set`` writes one and
 ``write_maps`` does both, building and writing one file's maps at a time (the
 same bytes, without the whole set in memory). A set is written as a unit
-(``relight.io._resultset.result_set``: built in a temporary sibling folder,
+(``relight.results.result_set``: built in a temporary sibling folder,
 the result-set manifest ``relight-set.json`` with every file's SHA-256 last,
 then swapped into place; the folder is locked meanwhile). Reading validates
 everything and raises ``FileNotFoundError`` or ``ImageFormatError`` (a
@@ -57,10 +57,10 @@ import numpy as np
 
 from ..image._preview import dilate
 from ..materials._maps import MODELS, MaterialMaps, material_maps
+from ..results import ResultSetError, open_result_set, result_set, writing
 from ._errors import ImageFormatError, format_version
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import jsonable, read_json, write_json
-from ._resultset import ResultSetError, open_result_set, result_set, writing
 
 __all__ = ["TextureSet", "is_map_set", "read_maps", "texture_set", "write_maps", "write_texture_set",
            "write_texture_set_files"]

@@ -2,6 +2,8 @@
 ladder BRDF and :class:`MaterialMaps`, the one type that fitting produces and
 rendering, the texture-set IO and the CLI consume."""
 
+from ._demo import DEMO_F0 as DEMO_F0
+from ._demo import demo_material as demo_material
 from ._maps import ALPHA_MAX as ALPHA_MAX
 from ._maps import BLINN_PHONG as BLINN_PHONG
 from ._maps import GGX as GGX
@@ -14,6 +16,8 @@ from ._maps import LadderBRDF as LadderBRDF
 from ._maps import MaterialMaps as MaterialMaps
 from ._maps import material_maps as material_maps
 from ._maps import phong_exponent as phong_exponent
+from ._presets import preset_mean_free_path as preset_mean_free_path
+from ._presets import subsurface_presets as subsurface_presets
 from ._skin import ALBEDO_MAX as ALBEDO_MAX
 from ._skin import ALBEDO_SCALE as ALBEDO_SCALE
 from ._skin import ALPHA_RANGE as ALPHA_RANGE

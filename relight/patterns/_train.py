@@ -27,9 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-import brdf
 import stage
 
+from ..results import atomic_write_bytes, atomic_write_text
 from ._autoencoder import PatternAutoencoder, lumitexel_target, sensor_noise
 from ._lumitexels import ALPHA_GRID, TRAIN_RANGES, Lumitexels, ParameterRanges, simulate_lumitexels, specular_bases
 
@@ -166,12 +166,12 @@ def save_model(path, model: PatternAutoencoder, rig: stage.Rig, *, metadata: dic
     path = Path(path)
     meta = dict(metadata or {})
     stage.save_patterns(path.with_suffix(".patterns.json"), np.asarray(model.patterns), rig, metadata=meta)
-    brdf.atomic_write_bytes(path.with_suffix(".eqx"), lambda fh: eqx.tree_serialise_leaves(fh, model))
+    atomic_write_bytes(path.with_suffix(".eqx"), lambda fh: eqx.tree_serialise_leaves(fh, model))
     shape = {"num_patterns": model.num_patterns, "num_lights": int(model.logits.shape[1]),
              "width": model.material_mlp.width_size, "depth": model.material_mlp.depth,
              "lumitexel_width": model.lumitexel_mlp.width_size, "lumitexel_depth": model.lumitexel_mlp.depth,
              "grid": list(model.grid), "metadata": meta}
-    brdf.atomic_write_text(path.with_suffix(".json"), json.dumps(shape, indent=1) + "\n")
+    atomic_write_text(path.with_suffix(".json"), json.dumps(shape, indent=1) + "\n")
 
 
 def load_model(path) -> tuple[PatternAutoencoder, dict]:

@@ -349,7 +349,7 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
 def write_index(folder: str | os.PathLike, sweeps=(), note: str | None = None, title: str | None = None,
                 location: str | os.PathLike | None = None) -> Path:
     """Write :func:`page_html` to ``folder/index.html`` (atomically) and return its path."""
-    from ..io._atomic import atomic_write_text
+    from ..results import atomic_write_text
 
     folder = Path(folder)
     text = page_html(folder, sweeps, note, title, location)

@@ -43,19 +43,19 @@ def test_limits_and_range():
     for f in (
         brdf.fresnel_conductor(COS, 0.2, 3.9),
         brdf.fresnel_dielectric(COS, 1.5),
-        brdf.fresnel_schlick(COS, 0.04),
+        brdf.schlick(COS, 0.04),
     ):
         v = np.asarray(f)
         assert v.min() >= 0 and v.max() <= 1 + 1e-15
         assert_close(v[0], [1.0])  # every Fresnel term is 1 at grazing incidence
-    assert_close(brdf.fresnel_schlick(jnp.ones((1, 1)), 0.3), [[0.3]])
+    assert_close(brdf.schlick(jnp.ones((1, 1)), 0.3), [[0.3]])
 
 
 def test_schlick_tracks_exact_dielectric():
     # Schlick 1994 approximates the dielectric closely; its worst absolute error for
     # eta = 1.5 is 0.036, near cos = 0.09 (measured here with 1001 points).
     f0 = ((1.5 - 1) / (1.5 + 1)) ** 2
-    err = np.abs(np.asarray(brdf.fresnel_schlick(COS, f0) - brdf.fresnel_dielectric(COS, 1.5)))
+    err = np.abs(np.asarray(brdf.schlick(COS, f0) - brdf.fresnel_dielectric(COS, 1.5)))
     assert err.max() < 0.04
     assert err[90:].max() < 1e-3  # near normal incidence (cos >= 0.9) they agree to 1e-3
 
@@ -69,7 +69,7 @@ def test_finite_gradients(dtype):
             jnp.sum(brdf.fresnel_conductor(c, p["eta"], p["k"]))
             + jnp.sum(brdf.fresnel_dielectric(c, p["eta"]))
             + jnp.sum(brdf.fresnel_dielectric(c, 1 / p["eta"]))
-            + jnp.sum(brdf.fresnel_schlick(c, p["f0"]))
+            + jnp.sum(brdf.schlick(c, p["f0"]))
         )
 
     # Matched indices (eta = 1, k = 0 or tiny), a dielectric, a metal; one compile.

@@ -224,9 +224,8 @@ def test_schlick_closed_forms():
     assert_close(brdf.schlick(jnp.ones((1, 1)), f0), f0)
     assert_close(brdf.schlick(jnp.zeros((1, 1)), f0), jnp.ones((1, 3)))
     assert_close(brdf.schlick(jnp.full((1, 1), 0.5), f0), f0 + (1 - f0) / 32)
-    # cos is clamped to [0, 1]; the old name is the same function
+    # cos is clamped to [0, 1]
     assert_close(brdf.schlick(jnp.asarray([-0.3, 1.7]), 0.04), [1.0, 0.04])
-    assert brdf.fresnel_schlick is brdf.schlick
     assert_close(brdf.SchlickFresnel(f0)(jnp.full((1, 1), 0.3)), brdf.schlick(jnp.full((1, 1), 0.3), f0))
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import brdf
+from relight.io import write_merl
 from tests.brdf._util import ev, ev_pairs, fjit
 from tests.helpers import assert_close
 
@@ -86,7 +87,7 @@ def table():
 def test_file_round_trip(tmp_path, table):
     model, tab = table
     path = tmp_path / "model.binary"
-    brdf.write_merl(path, tab)
+    write_merl(path, tab)
     raw = path.read_bytes()
     assert len(raw) == 12 + 8 * 3 * 90 * 90 * 180
     assert np.frombuffer(raw[:12], "<i4").tolist() == [90, 90, 180]
@@ -144,4 +145,4 @@ def test_bad_files_raise(tmp_path):
     with pytest.raises(ValueError, match="dims.binary.*dims"):
         brdf.read_merl(dims)
     with pytest.raises(ValueError, match="shape"):
-        brdf.write_merl(tmp_path / "x.binary", np.zeros((3, 90, 90, 90)))
+        write_merl(tmp_path / "x.binary", np.zeros((3, 90, 90, 90)))

@@ -1,5 +1,5 @@
-"""Atomic writes (brdf._atomic, the one implementation, re-exported by
-relight.io._atomic and used by every writer): a failure or a crash mid-write leaves the
+"""Atomic writes (stage._atomic, the one implementation, public as
+relight.results.atomic_* and used by every writer): a failure or a crash mid-write leaves the
 old file intact and no partial file under the target name; the new file's
 permissions are those of a plain open(): 0o666 less the umask, or the mode of
 the file it replaces."""
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-import brdf
-import relight.io._atomic
-from brdf._atomic import _umask, atomic_path, atomic_write_bytes, atomic_write_text
+import relight.results
+import stage._atomic
+from relight.results._atomic import _umask, atomic_path, atomic_write_bytes, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -86,7 +86,7 @@ def test_crash_mid_write_leaves_old_file_intact(tmp_path):
     path.write_bytes(b"old contents")
     code = (
         "import os, sys\n"
-        "from brdf import atomic_write_bytes\n"
+        "from relight.results import atomic_write_bytes\n"
         "def w(fh):\n"
         "    fh.write(b'partial'); fh.flush(); os._exit(3)\n"
         "atomic_write_bytes(sys.argv[1], w)\n"
@@ -105,20 +105,21 @@ def test_missing_folder_is_a_clear_error(tmp_path):
 
 
 def test_one_implementation_everywhere():
-    """relight.io re-exports brdf's writer; brdf exports it publicly."""
-    assert relight.io._atomic.atomic_path is brdf.atomic_path is atomic_path
-    assert relight.io._atomic.atomic_write_bytes is brdf.atomic_write_bytes is atomic_write_bytes
-    assert relight.io._atomic.atomic_write_text is brdf.atomic_write_text is atomic_write_text
+    """relight.results exports stage's writer (stage writes its own rig, camera and pattern files with it)."""
+    assert relight.results.atomic_path is stage._atomic.atomic_path is atomic_path
+    assert relight.results.atomic_write_bytes is stage._atomic.atomic_write_bytes is atomic_write_bytes
+    assert relight.results.atomic_write_text is stage._atomic.atomic_write_text is atomic_write_text
 
 
 @pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
 def test_every_layer_writes_with_the_umask(tmp_path, umask):
     """The writers that had their own temporary-file code (stage.save_cameras,
-    stage.PackedMask.save, brdf.write_merl) now give the permissions of a plain
+    stage.PackedMask.save, relight.io.write_merl) now give the permissions of a plain
     open() (mkstemp alone leaves 0o600), and leave no temporary file."""
     import numpy as np
 
     import stage
+    from relight.io import write_merl
 
     umask(0o022)
     atomic_write_text(tmp_path / "note.txt", "h\u00e9llo\n")
@@ -127,7 +128,7 @@ def test_every_layer_writes_with_the_umask(tmp_path, umask):
     stage.save_rig(tmp_path / "rig.json", stage.geodesic_dome(0))
     stage.PackedMask.pack(np.eye(9, dtype=bool)).save(tmp_path / "mask.npz")
     stage.PackedMask.pack(np.eye(3, dtype=bool)).save(tmp_path / "mask.bin")  # no .npz appended
-    brdf.write_merl(tmp_path / "m.binary", np.full((3, 90, 90, 180), 0.1))
+    write_merl(tmp_path / "m.binary", np.full((3, 90, 90, 180), 0.1))
     names = sorted(os.listdir(tmp_path))
     assert names == ["cams.json", "m.binary", "mask.bin", "mask.npz", "note.txt", "rig.json"]
     for n in names:

@@ -17,7 +17,7 @@ from relight.io import (
     write_exr_channels,
     write_exr_parts,
 )
-from relight.io._atomic import atomic_path
+from relight.results import atomic_path
 
 
 @pytest.fixture

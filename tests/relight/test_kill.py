@@ -3,12 +3,15 @@ re-running into an existing result set: the output folder is always the
 complete old set, the complete new set, or absent (never a mix), the readers
 reject a mix, and the next run cleans up what the killed one left.
 
-The kills are deterministic: ``RELIGHT_TEST_KILL_AT=<point>`` makes the result
-set writer (relight.io._resultset) SIGKILL its own process at a named commit
-point: "built" (every file written in the temporary folder, no manifest),
-"manifest" (manifest written, not swapped in), "moved" (the two-rename swap,
-forced by ``RELIGHT_TEST_NO_EXCHANGE``: the old set moved aside, the new one
+The kills are deterministic: each command runs in a subprocess (``_WRAPPER``)
+that injects a hook into the result-set writer (``relight.results._resultset``'s
+``_on_step``, called at every ``relight.results.commit_point``) before it calls
+``relight.cli.main``; the hook SIGKILLs the process at the named point: "built"
+(every file written in the temporary folder, no manifest), "manifest"
+(manifest written, not swapped in), "moved" (the two-rename swap, forced by
+setting ``_exchange_allowed`` to False: the old set moved aside, the new one
 not yet in) and "swapped" (the new set in place, the old one not yet deleted).
+The library itself holds no test hook.
 `relight fit` is also killed at "block" (its first block written to
 OUT/.parts, the map set not yet touched). Tiny inputs (an 8 x 8 texel grid, 42 lights) and one
 persistent compilation cache for every run keep each subprocess to seconds."""
@@ -25,9 +28,24 @@ import numpy as np
 import pytest
 
 from relight.io import open_capture, read_exr, read_maps
-from relight.io._resultset import KILL_ENV, NO_EXCHANGE_ENV, ResultSetError, _set_files, open_result_set
+from relight.results import ResultSetError, open_result_set
+from relight.results._resultset import _set_files
 
-RELIGHT = str(Path(sys.executable).parent / "relight")
+# `relight ARGS...` with the test hooks injected: argv = [kill point or "", "1" for the two-rename swap, ARGS...].
+_WRAPPER = """
+import os, signal, sys
+from relight.results import _resultset
+point, no_exchange = sys.argv[1], sys.argv[2] == "1"
+def kill_at(name):
+    if name == point:
+        os.kill(os.getpid(), signal.SIGKILL)
+if point:
+    _resultset._on_step = kill_at
+if no_exchange:
+    _resultset._exchange_allowed = False
+from relight.cli import main
+sys.exit(main(sys.argv[3:]))
+"""
 SIM = ["simulate", "--rig", "dome:42", "--resolution", "8", "--image-size", "16", "--quiet"]
 FIT = ["--model", "lambert", "--block", "8", "--quiet"]
 # A killed run is given this long at most (it dies at its kill point long before).
@@ -37,17 +55,13 @@ RUN_TIMEOUT_S = 180
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     cache = tmp_path_factory.mktemp("jax_cache")
-    keep = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", KILL_ENV, NO_EXCHANGE_ENV)}
+    keep = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     return keep | {"RELIGHT_CACHE_DIR": str(cache), "JAX_PLATFORMS": "cpu"}
 
 
 def _run(env, args, kill_at=None, no_exchange=False, check=True):
-    e = dict(env)
-    if kill_at:
-        e[KILL_ENV] = kill_at
-    if no_exchange:
-        e[NO_EXCHANGE_ENV] = "1"
-    r = subprocess.run([RELIGHT, *args], env=e, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    argv = [sys.executable, "-c", _WRAPPER, kill_at or "", "1" if no_exchange else "0", *args]
+    r = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
     if kill_at:
         assert r.returncode == -signal.SIGKILL, (kill_at, r.returncode, r.stderr[-2000:])
     elif check:
@@ -106,7 +120,7 @@ def test_simulate_killed_while_replacing_a_capture(capture, env):
 
 
 def _umask() -> int:
-    from brdf._atomic import _umask as umask
+    from relight.results._atomic import _umask as umask
 
     return umask()
 

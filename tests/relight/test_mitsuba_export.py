@@ -11,7 +11,8 @@ import pytest
 import brdf
 import relight
 import stage
-from relight.io import read_maps, write_exr, write_maps, write_mitsuba_scene
+from relight.export import mitsuba_envmap, write_mitsuba_scene
+from relight.io import read_maps, write_exr, write_maps
 
 RADIUS = 50.0  # mm
 
@@ -225,7 +226,6 @@ def test_mitsuba_envmap_reproduces_relight_pixels(sphere, tmp_path):
     mi = _mitsuba()
     from relight.envmap import latlong_directions
     from relight.io import read_exr
-    from relight.io._mitsuba import mitsuba_envmap
 
     mesh, surface = sphere
     rng = np.random.default_rng(5)

@@ -1,4 +1,4 @@
-"""Result sets written as a unit (relight.io._resultset): manifests checked by
+"""Result sets written as a unit (relight.results): manifests checked by
 the readers, mixed sets refused, output folders locked and refused when they
 are not the command's own kind, the umask respected, a full disk named, and
 the CLI's input checks (a 12-light dome fit, --rotate nan, a missing JAX
@@ -22,9 +22,8 @@ import pytest
 import relight
 import stage
 from relight.cli import main
-from relight.io import ImageFormatError, read_maps, write_maps
-from relight.io import _resultset as rsm
-from relight.io._resultset import (
+from relight.io import read_maps, write_maps
+from relight.results import (
     MANIFEST,
     FolderLock,
     FolderLockedError,
@@ -37,6 +36,7 @@ from relight.io._resultset import (
     write_manifest,
     writing,
 )
+from relight.results import _resultset as rsm
 
 RES = 8
 ENV = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"RELIGHT_CACHE_DIR": "off",
@@ -90,6 +90,26 @@ def test_a_folder_swapped_while_read_is_refused(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]  # no temporary, old or lock file left
 
 
+def test_a_file_added_to_a_finished_set_is_listed(tmp_path):
+    """ResultSet.add: a file written into a finished set (under its lock) joins the manifest, which keeps the
+    other entries as they were; the set then verifies whole."""
+    with result_set(tmp_path / "set", "test") as tmp:
+        (tmp / "x.txt").write_text("x")
+    folder = tmp_path / "set"
+    with FolderLock(folder, "relight view"):
+        (folder / "index.html").write_text("<html></html>")
+        rs = open_result_set(folder, "test")
+        rs.add(folder / "index.html")
+    assert rs.files["index.html"] == {"size": 13, "sha256": hashlib.sha256(b"<html></html>").hexdigest()}
+    again = open_result_set(folder, "test")
+    assert set(again.files) == {"x.txt", "index.html"} and again.generation == rs.generation
+    again.check()
+    with pytest.raises(FileNotFoundError, match="missing.txt"):
+        again.add("missing.txt")
+    with pytest.raises(ResultSetError, match="not a file of the result set"):
+        again.add("../elsewhere.txt")
+
+
 def test_mixed_map_set_is_refused(surface, tmp_path):
     """The reported failure: a new albedo.exr beside the old maps.json and the other maps (what an in-place
     writer killed mid-set leaves). Every file is a valid map; only the manifest tells the mix apart."""
@@ -101,7 +121,7 @@ def test_mixed_map_set_is_refused(surface, tmp_path):
     shutil.copy(new / "albedo.exr", old / "albedo.exr")
     with pytest.raises(ResultSetError, match=r"albedo\.exr: differs .* mixed"):
         read_maps(old)
-    assert isinstance(ResultSetError("x"), ImageFormatError)  # the CLI reports it like any bad input file
+    assert isinstance(ResultSetError("x"), ValueError)  # the CLI reports it like any bad input file
     (new / MANIFEST).unlink()  # a set without a manifest (interrupted before its last file) is no set
     with pytest.raises(ResultSetError, match="no relight-set.json"):
         read_maps(new)
@@ -161,7 +181,7 @@ def test_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_path
     # A holder killed outright (SIGKILL) leaves its lock file; the kernel has dropped its flock.
     code = f"""
         import os, sys
-        from relight.io._resultset import FolderLock
+        from relight.results import FolderLock
         FolderLock({str(out)!r}, "relight simulate").acquire()
         print(os.getpid(), flush=True)
         sys.stdin.read()
@@ -335,7 +355,8 @@ def test_missing_jax_platform_for_every_command(monkeypatch, capsys, tmp_path):
 def test_a_commands_own_output_from_before_manifests_is_replaceable(tmp_path):
     """A folder an earlier version of the same command wrote (its settings.json names the command, no manifest)
     is still that command's to replace; another command refuses it."""
-    from relight.cli._common import CLIError, check_out
+    from relight.cli._guard import CLIError
+    from relight.cli._output import check_out
 
     old = tmp_path / "old"
     old.mkdir()

@@ -88,7 +88,7 @@ def test_every_commands_page_loads_and_its_slider_moves_the_image(outputs, tmp_p
 def test_relight_view_rewrites_the_page_with_capture_and_model_rows(outputs, tmp_path, capsys):
     """`relight view` of a fit: its capture relit image-based and the fitted maps model-based, one slider; the
     manifest lists the new page and still checks."""
-    from relight.io._resultset import open_result_set
+    from relight.results import open_result_set
 
     assert main(["view", str(outputs / "maps"), "--frames", "6", "--size", "24"]) == 0
     assert "2 sweep(s) of 6 rotations" in capsys.readouterr().out
@@ -105,7 +105,7 @@ def test_relight_view_rewrites_the_page_with_capture_and_model_rows(outputs, tmp
 
 @pytest.mark.parametrize("name", ["cap", "maps", "rend", "turn", "demo"])
 def test_the_page_is_self_contained_and_in_the_manifest(outputs, name):
-    from relight.io._resultset import open_result_set
+    from relight.results import open_result_set
 
     page = (outputs / name / "index.html").read_text()
     srcs = re.findall(r"""\bsrc=["']([^"']*)""", page)

@@ -75,9 +75,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..materials._maps import BLINN_PHONG
-from ._atomic import atomic_path, atomic_write_bytes
-from ._exr import write_exr
+from ..io import read_exr, read_hdr, write_exr
+from ..materials import BLINN_PHONG
+from ..results import atomic_path, atomic_write_bytes
 
 __all__ = ["mitsuba_envmap", "write_mitsuba_scene"]
 
@@ -260,9 +260,6 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     if use_normalmap:
         write_exr(tex_dir / "normal_ts.exr", (0.5 * n_ts + 0.5).astype(np.float32))
     if match_envmap:
-        from ._exr import read_exr
-        from ._hdr import read_hdr
-
         suffix = envmap_path.suffix.lower()
         if suffix not in (".hdr", ".exr"):
             raise ValueError(f"{envmap_path}: environment map must be .hdr or .exr")
@@ -351,7 +348,7 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
 def _write_xml(folder: Path, scene) -> Path:
     ET.indent(scene)
     comment = ("<!-- relight texture set exported for Mitsuba 3: rho_d/pi + GGX specular as a blendbsdf "
-               "(the mapping: relight/io/_mitsuba.py, docs/cli.md). Lengths in mm. -->\n")
+               "(the mapping: relight/export/_mitsuba.py, docs/cli.md). Lengths in mm. -->\n")
     xml = '<?xml version="1.0" encoding="utf-8"?>\n' + comment + ET.tostring(scene, encoding="unicode") + "\n"
     path = folder / "scene.xml"
     atomic_write_bytes(path, lambda fh: fh.write(xml.encode()))

@@ -6,7 +6,7 @@ Writing (:func:`result_set`): the set is built in a hidden temporary sibling
 ``.NAME.<random>.tmp``; the manifest ``relight-set.json`` is written last (the
 completion marker); then the folder is swapped into place with one
 ``renameat2(RENAME_EXCHANGE)`` (Linux; elsewhere two renames, the old set moved
-aside first, see :func:`relight.io._store.swap_folder`) and the old set is
+aside first, see :func:`swap_into`) and the old set is
 deleted. ``NAME`` therefore holds the complete old set or the complete new one
 at every instant (with the two-rename fallback: or, for a moment, nothing). A
 process killed at any point leaves ``NAME`` as it was, plus a stale sibling
@@ -52,36 +52,39 @@ import json
 import os
 import secrets
 import shutil
-import signal
 import socket
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from ._atomic import _umask, atomic_write_text
-from ._errors import ImageFormatError, format_version
+from ._format import format_version
 
-__all__ = ["FolderLock", "FolderLockedError", "ForeignFolderError", "NoSpaceError", "ResultSet", "ResultSetError",
-           "check_output_folder", "clean_stale", "is_result_set", "open_result_set", "result_set", "swap_into",
-           "writing", "write_manifest"]
+__all__ = ["MANIFEST", "FolderLock", "FolderLockedError", "ForeignFolderError", "NoSpaceError", "ResultSet",
+           "ResultSetError", "WriteError", "check_output_folder", "clean_stale", "commit_point", "describe_folder",
+           "file_digest", "folder_mode", "is_result_set", "no_space_error", "open_result_set", "result_set",
+           "swap_into", "writing", "write_manifest"]
 
 FORMAT = "relight-result-set"
 VERSION = 1
 MANIFEST = "relight-set.json"
-# Test hook (tests/relight/test_kill.py): SIGKILL this process at the named commit point of a result set
-# ("built": files written, no manifest; "manifest": manifest written, not swapped; "moved": the fallback's old
-# set moved aside, the new one not yet in; "swapped": swapped in, the old set not yet deleted; relight fit's
-# "block": its first block written to OUT/.parts).
-KILL_ENV = "RELIGHT_TEST_KILL_AT"
-# Test hook: use the two-rename swap even where the OS can exchange two folders atomically.
-NO_EXCHANGE_ENV = "RELIGHT_TEST_NO_EXCHANGE"
+# Injection points for tests (none is set by the library; tests set them with monkeypatch, or in a subprocess
+# before the command runs). ``_on_step(name)`` is called at each named commit point (:func:`commit_point`):
+# "built" (files written, no manifest), "manifest" (manifest written, not swapped), "moved" (the two-rename
+# swap's old set moved aside, the new one not yet in), "swapped" (swapped in, the old set not yet deleted), and
+# the points a command names itself (relight fit's "block": its first block written to OUT/.parts). A test
+# kills the process there to check what a crash at that instant leaves.
+_on_step: Callable[[str], None] | None = None
+# False: the two-rename swap even where the OS can exchange two folders atomically (to test the fallback).
+_exchange_allowed = True
 _HASH_BLOCK = 1 << 20
 _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 
 
-class ResultSetError(ImageFormatError):
+class ResultSetError(ValueError):
     """A folder that is not a complete, consistent result set: no manifest (an
     interrupted write, or not written by relight), a listed file missing or
-    changed (a mix of two writes), or a folder replaced while it was read."""
+    changed (a mix of two writes), or a folder replaced while it was read. A
+    ValueError, as every bad input file's error (``relight.io.ImageFormatError``)."""
 
 
 class _Named:
@@ -116,14 +119,26 @@ def _err(cls, code: int, msg: str, filename) -> OSError:
     return e
 
 
-def kill_point(name: str) -> None:
-    """The test hook: SIGKILL this process if ``$RELIGHT_TEST_KILL_AT`` is ``name`` (a no-op otherwise)."""
-    if os.environ.get(KILL_ENV) == name:
-        os.kill(os.getpid(), signal.SIGKILL)
+def commit_point(name: str) -> None:
+    """Mark a named commit point of a write (module comment at ``_on_step``): a no-op unless a test injected
+    ``_on_step``.
+
+    Args:
+        name: the point ("built", "manifest", "moved", "swapped", or a command's own, e.g. "block").
+
+    Returns:
+        None.
+    """
+    if _on_step is not None:
+        _on_step(str(name))
 
 
-def _folder_mode() -> int:
-    """What a plain ``mkdir`` gives: 0o777 less the umask (``mkdtemp``'s 0o700 is not what a user expects)."""
+def folder_mode() -> int:
+    """The permission bits of a new folder.
+
+    Returns:
+        What a plain ``mkdir`` gives: 0o777 less the umask (``mkdtemp``'s 0o700 is not what a user expects).
+    """
     return 0o777 & ~_umask()
 
 
@@ -266,7 +281,15 @@ def _take_by_pid(fd: int, folder: Path, path: Path, err: OSError) -> bool:
 # ------------------------------------------------------------------ the manifest
 
 
-def _sha256(path: Path) -> str:
+def file_digest(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file, as a manifest lists it.
+
+    Args:
+        path: the file (read in blocks of 1 MiB).
+
+    Returns:
+        64 lowercase hex digits.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(_HASH_BLOCK):
@@ -296,7 +319,7 @@ def write_manifest(folder: str | os.PathLike, kind: str, unhashed: Sequence[str]
     (module docstring) atomically; ``extra`` (JSON-able) is stored as it is.
     Returns the manifest."""
     folder = Path(folder)
-    files = {rel: {"size": (folder / rel).stat().st_size, "sha256": _sha256(folder / rel)}
+    files = {rel: {"size": (folder / rel).stat().st_size, "sha256": file_digest(folder / rel)}
              for rel in _set_files(folder, unhashed)}
     doc = {"format": FORMAT, "version": VERSION, "kind": str(kind), "generation": secrets.token_hex(16),
            "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -343,7 +366,7 @@ class ResultSet:
             except FileNotFoundError:
                 raise ResultSetError(f"{path}: listed in {self.folder / MANIFEST} but missing: an incomplete set"
                                      ) from None
-            if size != want.get("size") or _sha256(path) != want.get("sha256"):
+            if size != want.get("size") or file_digest(path) != want.get("sha256"):
                 raise ResultSetError(f"{path}: differs from the file {self.folder / MANIFEST} lists (size or "
                                      "SHA-256): old and new files mixed, or an edit; rerun the command that made it")
         self.unchanged()
@@ -356,6 +379,38 @@ class ResultSet:
             ino = None
         if ino != self._ino:
             raise ResultSetError(f"{self.folder}: replaced while it was read; read it again")
+
+    def add(self, *paths: str | os.PathLike) -> None:
+        """List files just written into this finished set in its manifest.
+
+        Each file gets its size and SHA-256; the other entries are kept as they are (not re-hashed: an
+        addition never vouches for files it did not write), and the manifest is rewritten atomically. Call it
+        holding the folder's lock (:class:`FolderLock`), with the files written under it, as ``relight view``
+        adds its index.html to a finished output folder.
+
+        Args:
+            *paths: files inside the folder (absolute, or relative to it).
+
+        Returns:
+            None. Raises :class:`ResultSetError` if the folder was replaced since it was opened, or a path lies
+            outside it or is not a regular file; FileNotFoundError for a missing file.
+        """
+        self.unchanged()
+        path = self.folder / MANIFEST
+        doc = json.loads(path.read_text())
+        files = doc.setdefault("files", {})
+        for name in paths:
+            rel = self._rel(name)
+            file = self.folder / rel
+            if Path(rel).is_absolute() or rel.startswith("../") or rel == MANIFEST:
+                raise ResultSetError(f"{name}: not a file of the result set {self.folder}")
+            if not file.is_file():
+                if not file.exists():
+                    raise FileNotFoundError(f"{file}: no such file (to add to {path})")
+                raise ResultSetError(f"{file}: not a regular file (to add to {path})")
+            files[rel] = {"size": file.stat().st_size, "sha256": file_digest(file)}
+        atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+        self.manifest, self.files = doc, dict(files)
 
     def _rel(self, name) -> str:
         p = Path(name)
@@ -486,8 +541,8 @@ _AT_FDCWD = -100
 
 def _exchange(a: Path, b: Path) -> bool:
     """Swap ``a`` and ``b`` atomically (Linux renameat2 RENAME_EXCHANGE); False where unsupported (or when
-    the test hook ``RELIGHT_TEST_NO_EXCHANGE`` is set, to exercise the two-rename fallback)."""
-    if os.environ.get(NO_EXCHANGE_ENV):
+    the injection point ``_exchange_allowed`` is False, to exercise the two-rename fallback)."""
+    if not _exchange_allowed:
         return False
     try:
         libc = ctypes.CDLL(None, use_errno=True)
@@ -511,22 +566,22 @@ def swap_into(tmp: Path, folder: Path) -> None:
     that the new one lacks are not carried over (see :func:`result_set`'s ``keep``)."""
     if not (folder.exists() or folder.is_symlink()):
         os.replace(tmp, folder)
-        kill_point("swapped")
+        commit_point("swapped")
         return
     if _exchange(tmp, folder):
-        kill_point("swapped")
+        commit_point("swapped")
         shutil.rmtree(tmp, ignore_errors=True)  # now the old set
         return
     aside = folder.parent / f".{folder.name}.{secrets.token_hex(6)}.old"
     aside.mkdir()
     os.replace(folder, aside / "set")
-    kill_point("moved")
+    commit_point("moved")
     try:
         os.replace(tmp, folder)
     except BaseException:
         os.replace(aside / "set", folder)
         raise
-    kill_point("swapped")
+    commit_point("swapped")
     shutil.rmtree(aside, ignore_errors=True)
 
 
@@ -565,8 +620,8 @@ def _named_in(err: OSError, tmp: Path, folder: Path) -> OSError:
 
 def _commit(tmp: Path, folder: Path, keep: Sequence[str]) -> None:
     """The finished set at ``tmp`` (manifest written): the umask's mode, ``keep`` moved over, swapped in."""
-    os.chmod(tmp, _folder_mode())
-    kill_point("manifest")
+    os.chmod(tmp, folder_mode())
+    commit_point("manifest")
     for name in keep:
         src = folder / name
         if src.exists() and not (tmp / name).exists():
@@ -625,7 +680,7 @@ def result_set(folder: str | os.PathLike, kind: str, *, command: str | None = No
                     raise FileNotFoundError(f"{folder}: the result set was not built (no {tmp})")
                 if carry:
                     _carry_over(folder, tmp, keep)
-                kill_point("built")
+                commit_point("built")
                 write_manifest(tmp, kind, unhashed)
             except OSError as err:
                 named = _named_in(err, tmp, folder)

@@ -2,10 +2,11 @@
 name in the destination folder, flush it to disk, then ``os.replace`` it over
 the target.
 
-It lives in ``brdf`` because ``brdf`` is the lowest package and every layer
-writes files (``brdf.write_merl``, ``stage.save_cameras``, ``stage.save_rig``,
-``stage.PackedMask.save``, every ``relight.io`` writer); ``relight.io._atomic``
-re-exports it.
+Private to ``stage``, whose own file formats (``stage.save_rig``,
+``stage.save_cameras``, ``stage.save_patterns``, ``stage.PackedMask.save``) are
+written through it, and the lowest package that writes files;
+``relight.results`` re-exports it as the public ``relight.results.atomic_path``,
+``atomic_write_bytes`` and ``atomic_write_text`` that every ``relight`` writer uses.
 
 Why the same folder: ``os.replace`` is atomic only within one file system, and
 a temporary file next to the target is on the same one. A crash (or an
@@ -15,8 +16,8 @@ process killed outright leaves it behind, as ``.<name>.*.tmp<suffix>``, but the
 target is intact). The final file gets the permissions a plain ``open(path, "w")``
 would give it: those of the file it replaces, or 0o666 less the umask.
 
-Folders are a different job (``relight.io.write_capture`` swaps a whole
-capture folder into place); this module writes single files only.
+Folders are a different job (``relight.results.result_set`` swaps a whole
+folder into place); this module writes single files only.
 """
 
 from __future__ import annotations
