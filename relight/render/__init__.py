@@ -27,8 +27,21 @@ from ._directional import direction_visibility as direction_visibility
 from ._fast import Fast as Fast
 from ._fast import FastGeometry as FastGeometry
 from ._fast import FastLighting as FastLighting
+from ._folder import BACKGROUNDS as BACKGROUNDS
+from ._folder import FRONT_SIZE as FRONT_SIZE
+from ._folder import UNSEEN_WARN as UNSEEN_WARN
+from ._folder import RenderedFolder as RenderedFolder
+from ._folder import input_kind as input_kind
+from ._folder import map_set_capture as map_set_capture
+from ._folder import map_set_rig as map_set_rig
+from ._folder import render_cameras as render_cameras
+from ._folder import render_folder as render_folder
+from ._folder import subsurface_settings as subsurface_settings
+from ._folder import unseen_warnings as unseen_warnings
 from ._image_based import image_based_view as image_based_view
+from ._image_based import image_based_weights as image_based_weights
 from ._image_based import nearest_view as nearest_view
+from ._image_based import relight_photographs as relight_photographs
 from ._image_based import seen_texels as seen_texels
 from ._lights import Lights as Lights
 from ._lights import LightsLighting as LightsLighting
@@ -46,8 +59,57 @@ from ._rig import RigLighting as RigLighting
 from ._shading import build_operator as build_operator
 from ._view import orbit_camera as orbit_camera
 from ._view import render_view as render_view
+from ._view import scaled_camera as scaled_camera
 from ._view import turntable as turntable
+from ._view import y_rotations as y_rotations
 
-__all__ = ["AbstractMethod", "DEFAULTS", "Dense", "Fast", "Lights", "METHODS", "Reference", "Rig", "environment_behind",
-           "image_based_view", "nearest_view", "orbit_camera", "pixel_coverage", "relight_olat", "relight_olat_sweep",
-           "render_samples", "render_view", "seen_texels", "texel_fraction", "turntable", "uncovered_fraction"]
+__all__ = [
+    "AbstractDirectional",
+    "AbstractMethod",
+    "BACKGROUNDS",
+    "DEFAULTS",
+    "Dense",
+    "DenseLighting",
+    "DirectionalGeometry",
+    "FRONT_SIZE",
+    "Fast",
+    "FastGeometry",
+    "FastLighting",
+    "Lights",
+    "LightsLighting",
+    "METHODS",
+    "Reference",
+    "ReferenceGeometry",
+    "ReferenceLighting",
+    "RenderedFolder",
+    "Rig",
+    "RigLighting",
+    "UNSEEN_WARN",
+    "build_operator",
+    "direction_visibility",
+    "environment_behind",
+    "image_based_view",
+    "image_based_weights",
+    "input_kind",
+    "map_set_capture",
+    "map_set_rig",
+    "method_from_name",
+    "nearest_view",
+    "orbit_camera",
+    "pixel_coverage",
+    "relight_olat",
+    "relight_olat_sweep",
+    "relight_photographs",
+    "render_cameras",
+    "render_folder",
+    "render_samples",
+    "render_view",
+    "scaled_camera",
+    "seen_texels",
+    "subsurface_settings",
+    "texel_fraction",
+    "turntable",
+    "uncovered_fraction",
+    "unseen_warnings",
+    "y_rotations",
+]

@@ -148,7 +148,7 @@ def relight_photographs(radiance, mask, weights, valid=None) -> tuple[np.ndarray
     L, H, W, C = radiance.shape
     Cw = np.shape(weights)[-1]
     if C != Cw and C != 1:
-        raise ValueError(f"the photographs have {C} channels, but the rig and the map have {Cw}")
+        raise ValueError(f"{C} channels, but the rig and the map have {Cw}")
     w_mean = np.mean(np.asarray(weights, np.float64), axis=-1, keepdims=True)  # [K, L, 1]
     w = weights if C == Cw else w_mean.astype(np.float32)  # grey photographs: the mean weight
     inside = np.asarray(mask, bool).reshape(1, H * W, 1)

@@ -16,6 +16,7 @@ and makes the sweeps it can cheaply, with a note saying why when it cannot.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -25,15 +26,30 @@ import numpy as np
 
 import stage
 
-from ..envmap import bundled_envmap_path, load_envmap, rotation_matrix, rotation_sweep_weights
-from ..envmap._latlong import EnvMap
-from ..image import dilate, subject_exposure, texture_view, to_uint8, tonemap
+from ..envmap import EnvMap, bundled_envmap_path, load_envmap
+from ..image import subject_exposure, to_uint8, tonemap
 from ..materials import MaterialMaps
-from ..render import nearest_view, pixel_coverage, relight_olat_sweep, turntable
+from ..render import (
+    AbstractMethod,
+    Dense,
+    Reference,
+    RenderedFolder,
+    Rig,
+    image_based_view,
+    image_based_weights,
+    map_set_capture,
+    map_set_rig,
+    method_from_name,
+    pixel_coverage,
+    relight_photographs,
+    scaled_camera,
+    turntable,
+    y_rotations,
+)
 
 __all__ = ["DEFAULT_FRAMES", "DEFAULT_SIZE", "MAX_CAPTURE_VALUES", "PREVIEW_ENV_WIDTH", "Sweep", "capture_sweep",
-           "folder_sweeps", "frames_sweep", "map_set_capture", "map_set_sweeps", "maps_sweep", "photo_sweep",
-           "preview_envmap", "sweep_angles", "sweep_camera"]
+           "folder_sweeps", "frames_sweep", "map_set_sweeps", "maps_sweep", "photo_sweep", "preview_envmap",
+           "render_sweeps", "sweep_angles", "sweep_camera"]
 
 # Rotations of a sweep and the longer side (pixels) of its frames: 24 steps of 15 degrees, small frames (the
 # slider shows the light moving; the full-size render is the command's own output).
@@ -47,8 +63,6 @@ MAX_CAPTURE_VALUES = 1 << 26
 # bundled 1024 x 512 map costs 2.2 s of Voronoi weights a rotation for the Light Stage X's 346 lights (0.25 s for
 # 42) on 2 busy CPU cores; 256 x 128 costs 0.14 s (0.04 s).
 PREVIEW_ENV_WIDTH = 256
-# Gutter texels filled around the UV charts before the lookup (relight.render's image-based view does the same).
-_DILATE = 2
 
 
 class Sweep(NamedTuple):
@@ -68,26 +82,12 @@ def sweep_angles(frames: int) -> np.ndarray:
     return 360.0 * np.arange(int(frames)) / int(frames)
 
 
-def _rotations(angles) -> np.ndarray:
-    """[K, 3, 3] rotations about +y by ``angles`` (degrees): light from d arrives from R d."""
-    return np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
-                     for a in np.asarray(angles, np.float64)])
-
-
 def sweep_camera(camera: stage.Camera, size: int) -> stage.Camera:
     """``camera`` shrunk to ``size`` pixels on its longer side (never enlarged), its intrinsics scaled with
-    it so the picture is the same; the pose is unchanged."""
-    import jax.numpy as jnp
-
+    it so the picture is the same (``relight.render.scaled_camera``); the pose is unchanged."""
     if not isinstance(size, (int, np.integer)) or size < 8:
         raise ValueError(f"size must be an integer >= 8, got {size!r}")
-    s = size / max(camera.width, camera.height)
-    if s >= 1.0:
-        return camera
-    w, h = max(1, round(camera.width * s)), max(1, round(camera.height * s))
-    scale = np.diag([w / camera.width, h / camera.height, 1.0])
-    K = jnp.asarray(scale @ np.asarray(camera.K, np.float64), camera.K.dtype)
-    return stage.Camera(K=K, R=camera.R, t=camera.t, width=w, height=h, orthographic=camera.orthographic)
+    return camera if size >= max(camera.width, camera.height) else scaled_camera(camera, int(size))
 
 
 def preview_envmap(env: EnvMap, width: int = PREVIEW_ENV_WIDTH) -> EnvMap:
@@ -129,18 +129,8 @@ def capture_sweep(capture: stage.Capture, surface: stage.Surface, mesh: stage.Me
     (:func:`sweep_camera`); ``exposure`` None: the subject's (``relight.image.subject_exposure``)."""
     angles = sweep_angles(frames)
     cam = sweep_camera(camera, size)
-    env = preview_envmap(env)
-    rig = capture.rig
-    weights = rotation_sweep_weights(env, rig.directions, rig.center_irradiance, _rotations(angles))  # [K, L, C]
-    relit = np.asarray(relight_olat_sweep(capture.radiance, weights))  # [K, V, P, C]
-    relit = relit[:, nearest_view(capture, cam), np.arange(surface.num_samples)]  # [K, P, C]
-    H, W = surface.resolution
-    covered = np.zeros((H, W), bool)
-    covered.reshape(-1)[np.asarray(surface.texel_index)] = True
-    textures = {str(k): dilate(surface.to_texture(relit[k]), covered, _DILATE) for k in range(len(angles))}
-    views = texture_view(mesh, cam, textures)  # one ray cast for every frame
-    return _tonemapped(label, angles, np.stack([views[str(k)] for k in range(len(angles))]),
-                       pixel_coverage(mesh, cam), exposure)
+    frames_ = image_based_view(capture, surface, mesh, cam, preview_envmap(env), rotations=y_rotations(angles))
+    return _tonemapped(label, angles, frames_, pixel_coverage(mesh, cam), exposure)
 
 
 def photo_sweep(radiance: np.ndarray, mask: np.ndarray, rig: stage.Rig, env: EnvMap, frames: int = DEFAULT_FRAMES,
@@ -148,31 +138,27 @@ def photo_sweep(radiance: np.ndarray, mask: np.ndarray, rig: stage.Rig, env: Env
     """One camera's photographs ``radiance`` [L, H, W, C] (inside ``mask`` [H, W]) relit image-based under
     ``env`` turned by each of :func:`sweep_angles` ``(frames)``; no geometry, the photographs' own size."""
     angles = sweep_angles(frames)
-    radiance = np.asarray(radiance, np.float32)
-    L, H, W, C = radiance.shape
-    env = preview_envmap(env)
-    weights = np.asarray(rotation_sweep_weights(env, rig.directions, rig.center_irradiance, _rotations(angles)))
-    if C != weights.shape[-1]:
-        weights = weights.mean(-1, keepdims=True)
-    relit = np.asarray(relight_olat_sweep(radiance.reshape(L, H * W, C), weights.astype(np.float32)))
-    inside = np.asarray(mask, bool)
-    out = np.where(inside[None, ..., None], relit.reshape(len(angles), H, W, C), 0.0)
-    return _tonemapped(label, angles, out, inside.astype(np.float32), exposure)
+    weights = image_based_weights(preview_envmap(env), rig, y_rotations(angles))
+    out, _ = relight_photographs(np.asarray(radiance, np.float32), mask, weights)
+    return _tonemapped(label, angles, out, np.asarray(mask, bool).astype(np.float32), exposure)
 
 
 def maps_sweep(maps: MaterialMaps, surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
-               rig: stage.Rig | None = None, method: str = "rig", frames: int = DEFAULT_FRAMES,
-               size: int = DEFAULT_SIZE, label: str = "fitted maps, model-based", exposure: float | None = None,
+               method: AbstractMethod | None = None, frames: int = DEFAULT_FRAMES, size: int = DEFAULT_SIZE,
+               label: str = "fitted maps, model-based", exposure: float | None = None, rig: stage.Rig | None = None,
                **settings) -> Sweep:
     """The map set ``maps`` (over the texel ``surface``) rendered model-based (``relight.render.turntable``,
     environment mode, one sample a pixel) under ``env`` turned by each of :func:`sweep_angles` ``(frames)``,
-    through ``camera`` shrunk to ``size`` px; ``rig`` for ``method="rig"`` (the rig the maps were captured
-    under); ``settings`` go to the renderer."""
+    through ``camera`` shrunk to ``size`` px by ``method`` (a ``relight.render`` method Module; default
+    ``Rig(rig=rig)``: ``rig`` the rig the maps were captured under); ``settings`` go to the renderer."""
     angles = sweep_angles(frames)
     cam = sweep_camera(camera, size)
     env = preview_envmap(env)
-    if method == "rig" and rig is not None:
-        settings["rig"] = rig
+    if rig is not None:
+        if method is not None and not (isinstance(method, Rig) and method.rig is None):
+            raise ValueError("maps_sweep: rig= is the rig of the method Rig; give it as Rig(rig=...)")
+        method = Rig(rig=rig) if method is None else dataclasses.replace(method, rig=rig)
+    method = Rig() if method is None else method
     imgs = list(turntable(maps, surface, mesh, cam, env, frames=int(frames), mode="envmap", method=method,
                           supersample=1, background=False, **settings))
     return _tonemapped(label, angles, np.stack(imgs), pixel_coverage(mesh, cam), exposure)
@@ -258,27 +244,13 @@ def _capture_sweeps(folder: Path, env, frames, size, camera=None, exposure=None,
                           exposure)], None
 
 
-def map_set_capture(folder: str | os.PathLike) -> Path | None:
-    """The capture folder or store a map set was fitted from (maps.json ``metadata.capture``, absolute or
-    relative to the set; a ``truth/`` inside a capture: that capture), if it is still there; else None."""
-    from ..io import is_capture_store
-
-    folder = Path(folder)
-    meta = (_json(folder / "maps.json") or {}).get("metadata") or {}
-    cands = [folder / meta["capture"]] if isinstance(meta.get("capture"), str) and meta["capture"] else []
-    if folder.name == "truth":
-        cands.append(folder.parent)
-    for c in cands:
-        if (c / "capture.json").is_file() or is_capture_store(c):
-            return c
-    return None
-
-
-def _maps_rig(folder: Path, textures, recorded):
-    """The rig a map set was captured under: the set's rig.json, its capture's, or its parent capture's
-    (simulate's truth/ sits inside the capture folder)."""
-    if recorded is not None:
-        return recorded
+def _maps_rig(folder: Path, info: dict) -> stage.Rig | None:
+    """The rig a map set was captured under (``relight.render.map_set_rig``), else the rig.json of the capture
+    it was fitted from or sits in (simulate's truth/ sits inside the capture folder); None if none."""
+    try:
+        return map_set_rig(folder, info)[0]
+    except (OSError, ValueError):
+        pass
     cap = map_set_capture(folder)
     if cap is not None and (cap / "rig.json").is_file():
         try:
@@ -288,8 +260,8 @@ def _maps_rig(folder: Path, textures, recorded):
     return None
 
 
-def _maps_sweeps(folder: Path, env, frames, size, camera=None, exposure=None, label=None, rig=None,
-                 method="rig"):
+def _maps_sweeps(folder: Path, env, frames, size, camera=None, exposure=None, label=None,
+                 method: AbstractMethod | None = None):
     from ..io import load_texel_maps
 
     tm = load_texel_maps(folder)
@@ -299,20 +271,24 @@ def _maps_sweeps(folder: Path, env, frames, size, camera=None, exposure=None, la
         cam = stage.load_cameras(cap / "cameras.json")[0]
     if cam is None:
         return [], f"no rotation slider for {folder.name}/: the map set records no camera to render it from"
-    rig = rig if rig is not None else _maps_rig(folder, tm.textures, tm.rig)
-    if method == "rig" and rig is None:
-        return [], (f"no rotation slider for {folder.name}/: the map set records no rig (relight render needs one "
-                    "for --method rig; render it with --rig or --method dense)")
-    return [maps_sweep(tm.maps, tm.surface, tm.mesh, cam, env, rig=rig, method=method, frames=frames, size=size,
+    method = Rig() if method is None else method
+    if isinstance(method, Rig) and method.rig is None:
+        rig = _maps_rig(folder, tm.textures.info)
+        if rig is None:
+            return [], (f"no rotation slider for {folder.name}/: the map set records no rig (relight render needs "
+                        "one for --method rig; render it with --rig or --method dense)")
+        method = dataclasses.replace(method, rig=rig)
+    return [maps_sweep(tm.maps, tm.surface, tm.mesh, cam, env, method=method, frames=frames, size=size,
                        label=label or "maps, model-based", exposure=exposure)], None
 
 
 def map_set_sweeps(folder: str | os.PathLike, env: EnvMap, frames: int = DEFAULT_FRAMES, size: int = DEFAULT_SIZE,
                    camera: stage.Camera | None = None, exposure: float | None = None, model: bool = True,
-                   rig: stage.Rig | None = None, method: str = "rig") -> tuple[list[Sweep], str | None]:
-    """A map set's sweeps: its capture relit image-based (:func:`map_set_capture`, if at hand and at most
-    ``MAX_CAPTURE_VALUES``), then, with ``model`` (or when there is no capture), the maps rendered model-based
-    (:func:`maps_sweep` through ``rig``, else the rig the set records). One exposure, the first row's."""
+                   method: AbstractMethod | None = None) -> tuple[list[Sweep], str | None]:
+    """A map set's sweeps: its capture relit image-based (``relight.render.map_set_capture``, if at hand and at
+    most ``MAX_CAPTURE_VALUES``), then, with ``model`` (or when there is no capture), the maps rendered
+    model-based (:func:`maps_sweep` by ``method``; default ``Rig()`` through the rig the set records,
+    ``relight.render.map_set_rig``). One exposure, the first row's."""
     folder = Path(folder)
     sweeps, notes = [], []
     cap = map_set_capture(folder)
@@ -324,7 +300,7 @@ def map_set_sweeps(folder: str | os.PathLike, env: EnvMap, frames: int = DEFAULT
     if model or not sweeps:
         if sweeps and exposure is None:
             exposure = sweeps[0].exposure
-        rows, why = _maps_sweeps(folder, env, frames, size, camera, exposure, "the maps rendered model-based", rig,
+        rows, why = _maps_sweeps(folder, env, frames, size, camera, exposure, "the maps rendered model-based",
                                  method)
         sweeps += rows
         notes += [why] if why else []
@@ -355,7 +331,8 @@ def folder_sweeps(folder: str | os.PathLike, envmap: str | os.PathLike | None = 
         sweeps, exposure = [], None
         for sub, label in (("truth", "truth maps, model-based"), ("maps", "fitted maps, model-based")):
             if is_map_set(folder / sub):  # one exposure, the first's, so the two rows compare
-                s, _ = _maps_sweeps(folder / sub, env, frames, size, cam, exposure, label, rig=stage.light_stage_x())
+                s, _ = _maps_sweeps(folder / sub, env, frames, size, cam, exposure, label,
+                                    Rig(rig=stage.light_stage_x()))
                 sweeps += s
                 exposure = sweeps[0].exposure if sweeps else None
         return sweeps, None if sweeps else "no rotation slider: no maps/ or truth/ map set here"
@@ -389,10 +366,53 @@ def _render_sweeps(folder: Path, settings: dict, envmap, frames: int, size: int,
     if kind in ("capture", "photos"):
         return _capture_sweeps(src, env, frames, size, cam, exposure, "input capture, image-based")
     if kind == "maps":
-        method = str(flags.get("method") or "rig")
-        rig = None
-        if method == "rig" and flags.get("rig") and Path(str(flags["rig"])).exists():
+        method = method_from_name(str(flags.get("method") or "rig"))
+        if isinstance(method, Rig) and flags.get("rig") and Path(str(flags["rig"])).exists():
             p = Path(str(flags["rig"]))
-            rig = stage.load_rig(p / "rig.json" if p.is_dir() else p)
-        return map_set_sweeps(src, env, frames, size, cam, exposure, model, rig, method)
+            method = Rig(rig=stage.load_rig(p / "rig.json" if p.is_dir() else p))
+        return map_set_sweeps(src, env, frames, size, cam, exposure, model, method)
     return [], "no rotation slider: the render records no input kind"
+
+
+def render_sweeps(rendered: RenderedFolder, env: EnvMap | str | os.PathLike, frames: int = DEFAULT_FRAMES,
+                  size: int = DEFAULT_SIZE) -> tuple[list[Sweep], str | None]:
+    """The slider of a ``relight.render.render_folder`` output, at the render's exposure.
+
+    Args:
+        rendered: what ``render_folder`` returned.
+        env: the render's environment map (or its file).
+        frames: rotations of the sweep.
+        size: longer side of the sweep's frames (px).
+
+    Returns:
+        (rows, note): a turntable's own frames (the first camera's PNGs); else a sweep of the input from the
+        first camera: a capture or the photographs relit image-based; a map set's own capture relit image-based
+        when it is at hand (memory speed), else the maps model-based with the render's method (``Dense`` in
+        place of the Monte Carlo ``Reference``, which would cost more than the render itself).
+    """
+    env = env if isinstance(env, EnvMap) else load_envmap(env)
+    src, exposure = rendered.source, rendered.exposure
+    if len(rendered.angles_deg) > 1:
+        if rendered.kind == "photos":
+            label = f"rendered turntable of {rendered.cameras[0]}"
+        else:
+            label = f"rendered turntable, method {rendered.resolved['method']}"
+        return [frames_sweep(rendered.previews, rendered.angles_deg, label)], None
+    if "photos" in src:
+        view = next(src["photos"].iter_views())
+        return [photo_sweep(view.radiance, view.mask, src["photos"].rig, env, frames,
+                            f"photographs of {view.name} relit image-based", exposure)], None
+    camera = rendered.cameras[0]
+    if "capture" in src:
+        return [capture_sweep(src["capture"], src["surface"], src["mesh"], camera, env, frames, size,
+                              "the capture relit image-based", exposure)], None
+    method = src["method"]
+    if map_set_capture(src["folder"]) is not None:
+        rows, note = map_set_sweeps(src["folder"], env, frames, size, camera, exposure, model=False, method=method)
+        if rows:
+            return rows, note
+    method = Dense() if isinstance(method, Reference) else method
+    settings = {"eta": src["eta"]} if "eta" in src else {}
+    return [maps_sweep(src["maps"], src["surface"], src["mesh"], camera, env, method=method, frames=frames,
+                       size=size, exposure=exposure, label=f"the maps rendered model-based, method {method.name}",
+                       **settings)], None
