@@ -1,6 +1,10 @@
 """Per-dtype tolerances shared by the tests. A looser tolerance is local to its
 test and carries a comment saying why."""
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import beartype
 import jax
 import jax.numpy as jnp
@@ -42,3 +46,21 @@ def assert_finite(*xs):
 # How a boundary refuses bad input: its own ValueError naming the field, or, when the argument also breaks the
 # function's annotation, the test-time checker's jaxtyping.TypeCheckError (which names the parameter) first.
 REFUSED = (ValueError, jaxtyping.TypeCheckError)
+
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def load_script(name: str):
+    """Import ``scripts/<name>.py`` as a module, as ``python scripts/<name>.py`` would see it: with the scripts'
+    folder first on ``sys.path`` while it loads (for ``scripts/_common.py``), and registered under ``name`` in
+    ``sys.modules`` (dataclasses and equinox Modules look their module up by name)."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    sys.path.insert(0, str(SCRIPTS))
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(SCRIPTS))
+    return mod

@@ -4,23 +4,15 @@ the simulation's grid, so the fit's own discretisation is exact there) judged "o
 unidentifiable one (mfp 0.05 mm on 1.25 mm texels: 90% of the red profile's energy lies within
 0.04 mm, ~1/30 of a texel) not "ok". The full sweep is ``python scripts/stability_subsurface.py``."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "stability_subsurface.py"
+from ..helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("stability_subsurface", _SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up by name
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("stability_subsurface")
 
 
 def test_identifiable_cell_is_ok_and_subtexel_mfp_is_not(script):
