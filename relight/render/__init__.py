@@ -2,13 +2,20 @@
 model-based (``render_samples``, ``render_view``, ``turntable``) from material
 maps, a surface and an environment map. See docs/relight_render.md.
 
-Model-based methods (``METHODS``): "rig" (the environment sampled at a light
-rig's lights, what OLAT data supports), "dense" (quadrature over a lat-long
-grid with ray-cast visibility), "lights" (a median-cut light set of equal
-energy, Debevec 2005, with ray-cast visibility per light), "fast" (SH
-irradiance + split-sum specular + ambient occlusion) and "reference" (Monte
-Carlo with multiple importance sampling). Each is also a typed method object holding its settings
-(``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``), accepted as ``method=``.
+Model-based methods are equinox Modules that hold their settings and prepare and
+shade themselves (``AbstractMethod``: ``prepare(env)``, ``geometry(...)``,
+``shade(...)``), one module each: ``Rig`` (the environment sampled at a light
+rig's lights, what OLAT data supports), ``Dense`` (quadrature over a lat-long
+grid with ray-cast visibility), ``Lights`` (a median-cut light set of equal
+energy, Debevec 2005), ``Fast`` (SH irradiance + split-sum specular + ambient
+occlusion) and ``Reference`` (Monte Carlo with multiple importance sampling).
+``METHODS`` are their string spellings (the CLI's), turned into Modules by
+``method_from_name``.
+
+Image-based: ``image_based_view`` (a capture through a novel camera),
+``relight_photographs`` (one camera's photographs), ``image_based_weights``;
+``y_rotations`` turns the environment for either. A whole input folder into an
+output folder (what ``relight render`` does): ``render_folder``.
 
 What the camera sees besides the shading: ``pixel_coverage`` (a render's alpha), ``environment_behind`` (the
 background to composite over), ``texel_fraction`` / ``uncovered_fraction`` (how much of the subject lies on

@@ -124,69 +124,50 @@ def render_samples(maps: MaterialMaps, surface: stage.Surface, env: EnvMap, wo_w
                    method: str | AbstractMethod = "rig",
                    mesh: stage.Mesh | None = None, rig: stage.Rig | None = None, visibility=None, key=None,
                    **settings) -> Float[Array, "sample 3"]:
-    """Relit outgoing radiance [P, 3] at each surface sample toward ``wo_world``.
+    """Relit outgoing radiance at each surface sample toward the viewer.
 
-    Computes the direct reflection of the environment ``env`` (lat-long,
-    radiance in its own units; the result is in the same units) off the
-    material ``maps`` on ``surface`` (shading frame from the maps, see
-    ``MaterialMaps.frame``), with shadows from ray casting against ``mesh``
-    (None: no shadowing, every direction above the shading horizon is lit),
-    plus, for samples with model == SUBSURFACE, Jensen et al. 2001's
-    diffusion term (eq. 5) spread by a ``skin_bssrdf.DiffusionOperator``
-    (see the module docstring of ``relight.render`` for the equations).
+    The direct reflection of the environment off the material maps, with shadows from ray casting
+    against ``mesh``, plus for samples with model == SUBSURFACE the diffusion term spread by a
+    ``skin_bssrdf.DiffusionOperator`` (equations in ``relight/render/_shading.py``). The method
+    prepares the lighting (``method.prepare``), its geometry (``method.geometry``) and shades
+    (``method.shade``).
 
     Args:
-        maps: ``relight.MaterialMaps`` over the surface's P samples.
-        surface: ``stage.Surface`` (positions in mm; its interpolated
-            normals give the horizon test; shadow rays leave along the mesh's
-            face normals, see ``stage.Occluder``).
-        env: ``relight.envmap.EnvMap``.
+        maps: ``relight.MaterialMaps`` over the surface's P samples (shading frame from the maps,
+            ``MaterialMaps.frame``).
+        surface: ``stage.Surface`` (positions in mm; its interpolated normals give the horizon
+            test; shadow rays leave along the mesh's face normals, see ``stage.Occluder``).
+        env: ``relight.envmap.EnvMap`` (lat-long, radiance in its own units; the result is in the
+            same units).
         wo_world: [P, 3] or [3] unit directions toward the viewer (world).
-        method: a method object (``relight.render.Rig``, ``Dense``, ``Fast``,
-            ``Reference``, ``Lights``, holding that method's settings) or one of
-            the string names ``METHODS`` = ("rig", "dense", "fast", "reference", "lights"),
-            which take the method's settings as keyword arguments (below).
-        mesh: ``stage.Mesh`` for shadows (visibility is computed once here;
-            pass ``visibility`` to reuse it).
-        rig: the rig of method "rig" (default ``stage.light_stage_x()``).
-        visibility: precomputed bool [P, D] or ``stage.PackedMask`` for
-            "rig" (D = lights, ``stage.light_visibility``) or "dense" (D =
-            2 resolution^2 lat-long pixel directions, row-major).
-        key: ``jax.random`` key of method "reference" (default PRNGKey(0)).
+        method: a method Module (``Rig``, ``Dense``, ``Fast``, ``Reference``, ``Lights``, holding its
+            settings), or a string of ``METHODS`` whose settings are then keyword arguments (the
+            fields of its Module; ``Dense``'s ``rows`` as ``resolution``), built by
+            :func:`method_from_name`.
+        mesh: ``stage.Mesh`` casting shadows (None: every direction above the shading horizon is
+            lit); visibility is computed once here (pass ``visibility`` to reuse it).
+        rig: the rig of the string spelling "rig" (default ``stage.light_stage_x()``).
+        visibility: precomputed bool [P, D] or ``stage.PackedMask`` of a directional method: "rig"
+            (D = lights, ``stage.light_visibility``), "dense" (D = 2 resolution^2 lat-long pixel
+            directions, row-major) or "lights" (D = lights, in ``median_cut``'s order).
+        key: ``jax.random`` key of ``Reference`` (default PRNGKey(0)).
+        **settings: shared by every method: ``chunk`` samples per step (bounded memory; default
+            4096 for the directional methods, 16384 for fast, 2^18 / samples for reference);
+            ``eta`` (``skin_bssrdf.SKIN_ETA``) the relative index of the subsurface Fresnel
+            transmittances; ``operator`` a prebuilt ``DiffusionOperator`` on the same samples
+            (default :func:`build_operator`); ``rotation`` a 3x3 rotation of the environment (light
+            that arrived from d arrives from R d; exact for every method except "dense" at rotations
+            other than whole pixels about y); ``dtype`` (float32); ``terminator`` (True) shadow rays
+            from the smooth surface the interpolated normals describe (Hanika 2021, see
+            ``stage.Occluder``), False from the flat facets (as Mitsuba 3 and pbrt-v4 cast them).
 
-    Settings (keyword arguments):
-        all methods: ``chunk`` samples per step (bounded memory; default 4096
-        for rig/dense, 16384 for fast, 2^18 / samples for reference);
-        ``eta`` = 1.4 relative index for the subsurface Fresnel
-        transmittances; ``operator`` a prebuilt ``DiffusionOperator`` on the
-        same samples (default: built with the radius holding 99% of the
-        profile energy); ``rotation`` a 3x3 rotation of the environment (light
-        that arrived from d arrives from R d; exact for every method, no
-        resampling, except "dense" at rotations other than whole pixels about
-        y); ``dtype`` (float32); ``terminator`` (True) shadow rays from the
-        smooth surface the interpolated normals describe (Hanika 2021, see
-        ``stage.Occluder``), False from the flat facets (as Mitsuba 3 and
-        pbrt-v4 cast them, for like-for-like comparisons).
-        "rig": ``weights`` "voronoi" (default, ``light_weights``) or
-        "barycentric"; ``supersample`` (1) of the weights.
-        "dense": ``resolution`` (32) rows of the lat-long quadrature grid
-        (2 resolution^2 distant lights, each the area mean of the map).
-        "lights": ``lights`` (256) median-cut regions of equal energy, each a
-        distant light (``visibility`` then has D = lights columns, in the
-        order of ``relight.render._lights.median_cut``).
-        "fast": ``levels`` (7) prefiltered roughness levels,
-        ``prefilter_rows`` (128), ``prefilter_samples`` (64) GGX samples
-        per prefiltered texel, ``ao_rays`` (64) visibility rays per sample for
-        ambient occlusion and bent normals, ``lut_size`` (32) of the DFG table.
-        "reference": ``samples`` (256) directions per sample (run in passes
-        of 64, so rounded up to a multiple of 64 above 64),
-        ``env_fraction`` (0.5) of them from environment sampling, the rest
-        from BRDF sampling; ``heuristic`` "power" (default, beta = 2) or
-        "balance" (Veach & Guibas 1995, eq. 9 and 12).
+    Returns:
+        Radiance [P, 3] (float32 by default), never NaN or Inf. ValueError on an unknown method or
+        setting, inputs of the wrong type or shape, or maps and surface of different sizes.
 
-    Returns radiance [P, 3] (float32 by default), never NaN or Inf. Raises
-    ValueError on an unknown method or setting, inputs of the wrong type or
-    shape, or maps and surface of different sizes.
+    References:
+        Kajiya 1986, "The Rendering Equation" (direct term); Jensen et al. 2001, "A Practical Model
+        for Subsurface Light Transport", eq. 5; each method's own in its Module.
     """
     _with_rig(method, rig, settings)
     s = _settings(method, settings)

@@ -380,7 +380,7 @@ def render_sweeps(rendered: RenderedFolder, env: EnvMap | str | os.PathLike, fra
 
     Args:
         rendered: what ``render_folder`` returned.
-        env: the render's environment map (or its file).
+        env: the render's environment map (or its file; None: the bundled map).
         frames: rotations of the sweep.
         size: longer side of the sweep's frames (px).
 
@@ -390,7 +390,7 @@ def render_sweeps(rendered: RenderedFolder, env: EnvMap | str | os.PathLike, fra
         when it is at hand (memory speed), else the maps model-based with the render's method (``Dense`` in
         place of the Monte Carlo ``Reference``, which would cost more than the render itself).
     """
-    env = env if isinstance(env, EnvMap) else load_envmap(env)
+    env = env if isinstance(env, EnvMap) else _env(env)
     src, exposure = rendered.source, rendered.exposure
     if len(rendered.angles_deg) > 1:
         if rendered.kind == "photos":
