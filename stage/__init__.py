@@ -54,6 +54,10 @@ from ._patterns import sense_patterns as sense_patterns
 from ._patterns import simulate_patterns as simulate_patterns
 from ._progress import Phase as Phase
 from ._progress import Progress as Progress
+from ._project_texels import PROJECTION_REJECTIONS as PROJECTION_REJECTIONS
+from ._project_texels import TexelProjection as TexelProjection
+from ._project_texels import bilinear_taps as bilinear_taps
+from ._project_texels import project_texels as project_texels
 from ._rig import Gonioreflectometer as Gonioreflectometer
 from ._rig import Rig as Rig
 from ._rig import calibrate as calibrate

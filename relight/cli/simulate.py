@@ -55,12 +55,13 @@ if TYPE_CHECKING:  # what _LAZY imports at run time, spelled for readers and lin
     import skin_bssrdf
     import stage
 
-    from ..image import dilate, sample_texture, texture_view
+    from ..image import dilate, texture_view
     from ..io import (
         CaptureFolderWriter,
         CaptureStoreWriter,
+        mean_free_path_at,
         open_capture_store,
-        read_exr,
+        read_mean_free_path,
         spec_mesh,
         store_blocks,
         texel_surface,
@@ -69,18 +70,18 @@ if TYPE_CHECKING:  # what _LAZY imports at run time, spelled for readers and lin
         write_photo_capture,
     )
     from ..materials import GGX, SUBSURFACE, material_maps
-    from ..results import open_result_set, write_manifest
+    from ..results import open_result_set
 
 # The library names this module uses, imported on first use: name -> (module, attribute). A name a test or
 # script has replaced (``relight.cli.simulate.texel_surface = ...``) is kept.
 _LAZY = {
     "brdf": ("brdf", None), "skin_bssrdf": ("skin_bssrdf", None), "stage": ("stage", None),
-    **{n: ("relight.image", n) for n in ("dilate", "sample_texture", "texture_view")},
-    **{n: ("relight.io", n) for n in ("CaptureFolderWriter", "CaptureStoreWriter", "open_capture_store", "read_exr",
-                                      "spec_mesh", "store_blocks", "texel_surface", "write_exr", "write_maps",
-                                      "write_photo_capture")},
+    **{n: ("relight.image", n) for n in ("dilate", "texture_view")},
+    **{n: ("relight.io", n) for n in ("CaptureFolderWriter", "CaptureStoreWriter", "mean_free_path_at",
+                                      "open_capture_store", "read_mean_free_path", "spec_mesh", "store_blocks",
+                                      "texel_surface", "write_exr", "write_maps", "write_photo_capture")},
     **{n: ("relight.materials", n) for n in ("GGX", "SUBSURFACE", "material_maps")},
-    **{n: ("relight.results", n) for n in ("open_result_set", "write_manifest")},
+    "open_result_set": ("relight.results", "open_result_set"),
 }
 
 # relight.cli._common.SUBSURFACE_PRESETS (the --subsurface presets, read from skin_bssrdf), spelled here for the
@@ -174,37 +175,11 @@ def _mfp_source(args):
     if not (path.is_file() or path.suffix.lower() == ".exr"):
         mfp, eta = preset_mean_free_path(args.subsurface)
         return "preset", mfp * args.mfp_scale, eta if args.eta is None else args.eta
-    if not path.is_file():
-        raise CLIError(f"--subsurface {path}: no such mean-free-path EXR")
     try:
-        mfp = np.asarray(read_exr(path), np.float64)
-    except ValueError as err:
-        raise CLIError(f"--subsurface {path}: {err}") from None
-    if mfp.shape[-1] not in (1, 3):
-        raise CLIError(f"--subsurface {path}: a mean free path map has 3 channels (R, G, B) or 1 (Y), "
-                       f"this one {mfp.shape[-1]}")
-    if not np.all(np.isfinite(mfp)):
-        raise CLIError(f"--subsurface {path}: the mean free path map has NaN or Inf values")
-    if np.any(mfp < 0):
-        raise CLIError(f"--subsurface {path}: the mean free path map has negative values (min {mfp.min():.3g}; "
-                       "mm, >= 0)")
-    mfp = np.repeat(mfp, 3, axis=-1) if mfp.shape[-1] == 1 else mfp
+        mfp = read_mean_free_path(path)
+    except (OSError, ValueError) as err:
+        raise CLIError(f"--subsurface {err}") from None
     return "map", mfp * args.mfp_scale, skin_bssrdf.SKIN_ETA if args.eta is None else args.eta
-
-
-def _mfp_at(kind: str, mfp, full, surface, where: str) -> np.ndarray:
-    """The mean free path [P, 3] (mm) at the seen samples: the preset's everywhere, or the map's texel
-    (bilinear at the samples' uv if the map is not on the texel grid's size)."""
-    if kind == "preset":
-        return np.broadcast_to(mfp, (surface.num_samples, 3)).copy()
-    if tuple(mfp.shape[:2]) == tuple(full.resolution):
-        out = mfp.reshape(-1, 3)[np.asarray(surface.texel_index)]
-    else:
-        out = sample_texture(mfp, np.asarray(surface.uv, np.float64))
-    if not np.any(out > 0):
-        raise CLIError(f"--subsurface {where}: the mean free path is 0 at every texel the camera sees "
-                       "(no subsurface scattering); omit --subsurface")
-    return out
 
 
 def _noise(spec: str, read_noise: float):
@@ -320,7 +295,7 @@ def _run_texel(args, out: Path, sensor, sss_source, tmp: Path, store: bool) -> i
         raise CLIError(f"--camera {args.camera}: no texel of the mesh is seen by any camera")
     surface, cam_vis = full.subset(seen), cam_vis[:, seen]
     times["camera_visibility_s"] = time.perf_counter() - t0
-    rho, f0, alpha, truth, sss, mfp, model, sss_info = _truth(args, sss_source, full, surface, times)
+    rho, f0, alpha, truth, sss, mfp, model, sss_info = _truth(args, sss_source, surface, times)
     (H, W), V, L, C = full.resolution, len(cams), rig.num_lights, 3
     del full  # only the seen texels from here (the grid's surface is ~70 B a texel)
     memory["camera_visibility"] = _memory()
@@ -373,7 +348,7 @@ def _run_texel(args, out: Path, sensor, sss_source, tmp: Path, store: bool) -> i
     return 0
 
 
-def _truth(args, sss_source, full, surface, times):
+def _truth(args, sss_source, surface, times):
     """The demo material on the seen samples: (rho, f0, alpha, truth brdf, Subsurface or None, mfp or None,
     model or None, the subsurface report or None)."""
     rho, f0, alpha = demo_material(surface)
@@ -384,7 +359,10 @@ def _truth(args, sss_source, full, surface, times):
     kind, source, eta = sss_source
     with bar(None, "subsurface (diffusion operator)", args.quiet) as b:
         b("neighbours", 0, None)
-        mfp = _mfp_at(kind, source, full, surface, args.subsurface)
+        mfp = mean_free_path_at(source, surface)
+        if not np.any(mfp > 0):
+            raise CLIError(f"--subsurface {args.subsurface}: the mean free path is 0 at every texel the camera "
+                           "sees (no subsurface scattering); omit --subsurface")
         sss = stage.subsurface_from_maps(surface, rho, mfp, eta)
     on = np.any(mfp > 0, axis=1)
     # Subsurface texels take their diffuse light from the operator; the others keep the local Lambert term.
@@ -413,13 +391,12 @@ def _write_extras(out: Path, mesh, cams, surface, resolution, all_on, truth_maps
     covered = np.zeros((H, W), bool)
     covered.reshape(-1)[np.asarray(surface.texel_index)] = True
     write_maps(out / "truth", truth_maps, surface, surface_info=spec, metadata=truth_meta)
-    # truth/'s previews, as `relight fit` writes its own, then truth/'s manifest again so that it lists them
-    # (truth/ is inside the capture being built at `out`: no reader sees it before the whole capture is swapped in).
+    # truth/'s previews, as `relight fit` writes its own, added to truth/'s manifest (truth/ is inside the capture
+    # being built at `out`, under its lock: no reader sees it before the whole capture is swapped in).
     grid = lambda x: dilate(surface.to_texture(np.asarray(x, np.float32)), covered)  # noqa: E731
     write_map_previews(out / "truth", grid(truth_maps.rho_d), grid(truth_maps.rho_s),
                        grid(np.asarray(truth_maps.alpha)[:, :1]))
-    truth_set = open_result_set(out / "truth")
-    write_manifest(out / "truth", truth_set.kind, truth_set.manifest.get("unhashed") or ())
+    open_result_set(out / "truth").add("albedo.png", "specular.png", "roughness.png")
     view = texture_view(mesh, cams[0], {"all_lights": dilate(all_on.reshape(H, W, -1), covered)})["all_lights"]
     with writing(out / "preview_all_lights.exr"):
         write_exr(out / "preview_all_lights.exr", view)

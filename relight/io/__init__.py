@@ -39,6 +39,8 @@ from ._hdr import write_hdr as write_hdr
 from ._json import jsonable as jsonable
 from ._json import read_json as read_json
 from ._json import write_json as write_json
+from ._mean_free_path import mean_free_path_at as mean_free_path_at
+from ._mean_free_path import read_mean_free_path as read_mean_free_path
 from ._merl import write_merl as write_merl
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
@@ -91,6 +93,8 @@ from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
 
 __all__ = [
+    "mean_free_path_at",
+    "read_mean_free_path",
     "ArraySource",
     "CaptureSource",
     "capture_source",

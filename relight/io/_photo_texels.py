@@ -22,7 +22,7 @@ from ._photos import PhotoCapture
 
 SAMPLING = "bilinear"
 # Rejection reasons, in the order they are applied (each counts texels still in the running).
-REASONS = ("behind_or_outside_image", "back_facing", "grazing", "outside_mask", "occluded")
+REASONS = stage.PROJECTION_REJECTIONS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,22 +73,6 @@ class PhotoTexelReport:
                 "shadows": bool(self.shadows), "sampling": self.sampling}
 
 
-def _bilinear_taps(pix: np.ndarray, width: int, height: int):
-    """The four pixel taps [n, 4] (flat index, -1 outside the image) and their
-    bilinear weights [n, 4] of the points ``pix`` [n, 2] (pixel centres at
-    integer + 0.5, stage.Camera's convention)."""
-    x = pix[:, 0] - 0.5
-    y = pix[:, 1] - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx, fy = x - x0, y - y0
-    xs = np.stack([x0, x0 + 1, x0, x0 + 1], 1)
-    ys = np.stack([y0, y0, y0 + 1, y0 + 1], 1)
-    w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
-    inside = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)
-    return np.where(inside, ys * width + xs, -1), w
-
-
 def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int], *,
                      grazing_deg: float = 80.0, min_views: int = 1, shadows: bool = True,
                      progress=None) -> tuple[stage.Capture, stage.Surface, PhotoTexelReport]:
@@ -96,7 +80,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     ``resolution``, ``stage.texel_samples``).
 
     For each camera (read one at a time, ``PhotoCapture.read_view``), every
-    texel centre is projected (``stage.Camera.project``; distortion, if
+    texel centre is projected (``stage.project_texels``: ``stage.Camera.project``; distortion, if
     recorded, is not applied: the photographs are taken as undistorted) and
     rejected when it is behind the camera or its bilinear footprint leaves the
     image, back-facing (n . wo <= 0) or grazing (theta_o > ``grazing_deg``),
@@ -124,10 +108,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
         raise ValueError(f"photos_to_texels: min_views must be >= 1, got {min_views}")
     surface = stage.texel_samples(mesh, resolution)
     P, V, L = surface.num_samples, photos.n_views, photos.n_lights
-    pos = np.asarray(surface.position, np.float64)
-    nrm = np.asarray(surface.normal, np.float64)
     lit = np.asarray(stage.light_visibility(mesh, surface, photos.rig), bool).T if shadows else None  # [L, P]
-    cos_graze = float(np.cos(np.deg2rad(grazing_deg)))
     occluder = stage.Occluder(mesh, surface)  # one BVH for every camera
     bar = stage.Phase(progress, "photos to texels", V)
     radiance = mask = None
@@ -135,7 +116,6 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     rejected, valid_frac = [], []
     for v in range(V):
         view = photos.read_view(v)
-        cam = view.camera
         H, W = view.mask.shape
         rad = view.radiance.reshape(L, H * W, -1)
         ok_px = view.valid.reshape(L, H * W)
@@ -145,23 +125,8 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
         elif rad.shape[-1] != radiance.shape[-1]:
             raise ValueError(f"{photos.folder}: camera {view.name} has {rad.shape[-1]} channels, "
                              f"camera {photos.names[0]} {radiance.shape[-1]}")
-        pix, z = cam.project(pos)
-        pix, z = np.asarray(pix, np.float64), np.asarray(z, np.float64)
-        taps, w = _bilinear_taps(pix, W, H)
-        cos_o = np.sum(np.asarray(cam.view_directions(pos), np.float64) * nrm, axis=1)
-        reasons = {}
-        cand = np.ones(P, bool)
-        for name, keep in (("behind_or_outside_image", (z > 0) & np.all(taps >= 0, axis=1)),
-                           ("back_facing", cos_o > 0),
-                           ("grazing", cos_o >= cos_graze)):
-            reasons[name] = int(np.sum(cand & ~keep))
-            cand &= keep
-        in_mask = np.zeros(P, bool)
-        in_mask[cand] = np.all(view.mask.reshape(-1)[taps[cand]], axis=1)
-        reasons["outside_mask"] = int(np.sum(cand & ~in_mask))
-        cand &= in_mask
-        seen = stage.camera_visibility(mesh, surface, [cam], occluder=occluder, candidates=cand)[0]
-        reasons["occluded"] = int(np.sum(cand & ~seen))
+        taps, w, cos_o, seen, reasons = stage.project_texels(mesh, surface, view.camera, mask=view.mask,
+                                                             grazing_deg=grazing_deg, occluder=occluder)
         idx = np.flatnonzero(seen)
         t, wt = taps[idx], w[idx].astype(np.float32)
         radiance[v][:, idx] = np.einsum("lnkc,nk->lnc", rad[:, t], wt)
