@@ -239,11 +239,11 @@ def _channels(C: int) -> list[str]:
 
 
 def _write_exr(path: Path, image: np.ndarray, **kw) -> None:
-    from .. import io as rio
+    from ..io import write_exr  # looked up at each call: a test may replace relight.io.write_exr (a full disk)
     from ..results import writing
 
     with writing(path):
-        rio.write_exr(path, image, **kw)
+        write_exr(path, image, **kw)
 
 
 def _write_preview(path: Path, rgb: np.ndarray, cov: np.ndarray, exposure: float, alpha: bool) -> None:
