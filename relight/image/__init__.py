@@ -3,6 +3,8 @@ the subject), tone mapping (exposure, Reinhard / filmic curves), the sRGB
 transfer, quantisation to 8/16 bits, resampling, and texture-space previews
 (texture lookups seen through a camera, gap dilation, whole-texel enlargement)."""
 
+from ._comparison import psnr as psnr
+from ._comparison import truth_fit_figure as truth_fit_figure
 from ._coverage import coverage_image as coverage_image
 from ._exposure import SUBJECT_KEY as SUBJECT_KEY
 from ._exposure import SUBJECT_PERCENTILE as SUBJECT_PERCENTILE
@@ -22,6 +24,6 @@ from ._tonemap import to_uint16 as to_uint16
 from ._tonemap import tonemap as tonemap
 
 __all__ = ["CURVES", "PREVIEW_MIN_PX", "SUBJECT_KEY", "SUBJECT_PERCENTILE", "coverage_image",
-           "dilate", "luminance", "resize_image",
+           "dilate", "luminance", "psnr", "resize_image", "truth_fit_figure",
            "sample_texture", "srgb_decode", "srgb_encode", "subject_exposure", "texture_view", "to_uint8", "to_uint16",
            "tonemap", "upscale_nearest"]

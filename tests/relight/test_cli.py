@@ -58,9 +58,12 @@ def test_demo_end_to_end(tmp_path):
     assert main(["demo", "--out", str(out), "--resolution", "32", "--cameras", "2", "--image-size", "48",
                  "--quiet"]) == 0
     report = json.loads((out / "report.json").read_text())
-    e = report["errors"]
-    assert e["albedo_rel"]["median"] < 0.05 and e["albedo_rel"]["samples"] == report["texels_seen"] > 100
+    e = {name: row["all_seen"] for name, row in report["against_truth"]["errors"].items()}
+    assert e["diffuse_albedo_rel"]["median"] < 0.05
+    assert e["diffuse_albedo_rel"]["samples"] == report["texels_seen"] > 100
     assert e["normal_deg"]["median"] < 2.0
+    assert e["mfp_rel"]["samples"] == 3 * report["texels_seen"]  # texel-channels
+    assert "errors" not in report and "deprecated_error_keys" not in report
     assert report["relit_psnr_db"] > 20.0 and report["flagged_fraction"] < 0.05
     assert report["cameras"] == 2 and report["lights"] == 346 and report["noise_relative_at_median"] == 0.01
     assert abs(sum(report["model_fraction"].values()) - 1) < 1e-9
@@ -68,8 +71,8 @@ def test_demo_end_to_end(tmp_path):
     for name in ("preview.png", "relit_truth.exr", "relit_fit.exr", "maps/albedo.exr", "maps/mean_free_path.exr",
                  "truth/albedo.exr", "truth/mean_free_path.exr", "settings.json", "report.md"):
         assert (out / name).is_file(), name
-    assert "over every seen texel" in (out / "report.md").read_text()
-    from relight.io._exr import read_exr
+    assert f"over the {report['texels_seen']} seen texels" in (out / "report.md").read_text()
+    from relight.io import read_exr
 
     albedo = read_exr(out / "maps" / "albedo.exr")
     assert albedo.shape == (32, 32, 3) and np.all(np.isfinite(albedo))
