@@ -94,15 +94,21 @@ _SCHLICK_WEIGHT = 0.99
 
 
 def mitsuba_envmap(radiance: np.ndarray, refine: int | None = None) -> np.ndarray:
-    """A lat-long map [k H + 1, k W, C] for Mitsuba's ``envmap`` (bilinear
-    between nodes, row i at theta = i pi / (k H), column j at
-    u = (j + 0.5) / (k W)) whose lookups reproduce ``radiance`` [H, W, C] read
-    as ``relight.envmap`` reads it (piecewise constant, row i over polar angles
-    [i, i + 1] pi / H): each node row is the mean of the two fine rows it
-    separates (the nearest-refined map, k = ``refine``, default the smallest
-    even k with k H >= 1024), so a pixel edge is blended over 1/k pixel and
-    every row keeps its integral. Columns are nearest-refined (Mitsuba's column
-    nodes are pixel centres)."""
+    """A lat-long map for Mitsuba's ``envmap`` whose bilinear lookups return relight's pixels.
+
+    Mitsuba's emitter interpolates bilinearly between nodes (row i at theta = i pi / (k H), column j at
+    u = (j + 0.5) / (k W)); ``relight.envmap`` reads a map as piecewise constant (row i over polar angles
+    [i, i + 1] pi / H). Each node row is the mean of the two rows of the nearest-refined map it separates,
+    so a pixel edge is blended over 1/k pixel and every row keeps its integral; columns are nearest-refined
+    (Mitsuba's column nodes are pixel centres).
+
+    Args:
+        radiance: the lat-long map [H, 2H, C] as relight reads it (ValueError for another shape).
+        refine: the refinement k (default: the smallest even k with k H >= 1024).
+
+    Returns:
+        float32 [k H + 1, k W, C].
+    """
     rad = np.asarray(radiance, np.float32)
     if rad.ndim != 3 or rad.shape[1] != 2 * rad.shape[0]:
         raise ValueError(f"radiance must be a lat-long map [H, 2H, C], got shape {list(rad.shape)}")
@@ -202,7 +208,8 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
             dielectric curve of F0) or "schlick" (``principled`` metallic,
             the fitted model's Schlick Fresnel; see the module docstring).
 
-    Returns the path of scene.xml. See the module docstring for the BSDF mapping.
+    Returns:
+        The path of scene.xml. See the module docstring for the BSDF mapping.
     """
     folder = Path(folder)
     if fresnel not in ("dielectric", "schlick"):

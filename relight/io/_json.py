@@ -41,14 +41,15 @@ def write_json(path: str | os.PathLike, obj, indent: int = 2) -> None:
 
 
 def read_json(path: str | os.PathLike, what: str = "JSON file"):
-    """The parsed contents of ``path`` (``stage.read_json``, the one JSON reader).
-    Raises FileNotFoundError (``what`` says which file was expected) or
-    ImageFormatError (a ValueError) naming the file."""
-    try:
-        return stage.read_json(path, what, error=ImageFormatError)
-    except ImageFormatError:
-        raise
-    # What stage.read_json lets through: an integer of more than 4300 digits (Python's int-parsing limit,
-    # a ValueError) and arrays nested deeper than the recursion limit.
-    except (ValueError, RecursionError) as err:
-        raise ImageFormatError(f"{path}: not valid JSON ({type(err).__name__}: {str(err)[:200]})") from None
+    """The parsed contents of a JSON file, read by ``stage.read_json`` (the project's one JSON reader).
+
+    Args:
+        path: the file.
+        what: which file was expected, for the error of a missing one.
+
+    Returns:
+        The parsed document. Raises FileNotFoundError, or :class:`ImageFormatError` (a ValueError) naming the
+        file when it is not valid UTF-8 JSON (an integer of more than 4300 digits and nesting deeper than the
+        recursion limit included).
+    """
+    return stage.read_json(path, what, error=ImageFormatError)

@@ -57,12 +57,13 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from ._atomic import _umask, atomic_write_text
+from ._errors import ForeignFolderError, NoSpaceError, ResultSetError, _err, no_space_error
 from ._format import format_version
+from ._lock import FolderLock, _lock_path
 
-__all__ = ["MANIFEST", "FolderLock", "FolderLockedError", "ForeignFolderError", "NoSpaceError", "ResultSet",
-           "ResultSetError", "WriteError", "check_output_folder", "clean_stale", "commit_point", "describe_folder",
-           "file_digest", "folder_mode", "is_result_set", "no_space_error", "open_result_set", "result_set",
-           "swap_into", "writing", "write_manifest"]
+__all__ = ["MANIFEST", "ResultSet", "check_output_folder", "clean_stale", "commit_point", "describe_folder",
+           "file_digest", "folder_mode", "is_result_set", "open_result_set", "result_set", "swap_into",
+           "write_manifest"]
 
 FORMAT = "relight-result-set"
 VERSION = 1
@@ -77,46 +78,6 @@ _on_step: Callable[[str], None] | None = None
 # False: the two-rename swap even where the OS can exchange two folders atomically (to test the fallback).
 _exchange_allowed = True
 _HASH_BLOCK = 1 << 20
-_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
-
-
-class ResultSetError(ValueError):
-    """A folder that is not a complete, consistent result set: no manifest (an
-    interrupted write, or not written by relight), a listed file missing or
-    changed (a mix of two writes), or a folder replaced while it was read. A
-    ValueError, as every bad input file's error (``relight.io.ImageFormatError``)."""
-
-
-class _Named:
-    """str() is the message alone: an OSError with ``errno`` / ``filename`` set would print
-    ``[Errno N] strerror: 'file'`` instead."""
-
-    def __str__(self) -> str:
-        return str(self.args[0]) if self.args else ""
-
-
-class FolderLockedError(_Named, OSError):
-    """Another live process is writing the output folder."""
-
-
-class ForeignFolderError(_Named, FileExistsError):
-    """The output folder exists and is not a result set of the command's own kind."""
-
-
-class NoSpaceError(_Named, OSError):
-    """The disk (or quota) filled up while a file was written."""
-
-
-class WriteError(_Named, OSError):
-    """A file could not be written (an encoder's failure), naming the file."""
-
-
-def _err(cls, code: int, msg: str, filename) -> OSError:
-    """An OSError subclass whose str() is ``msg`` alone (the three-argument form prints ``[Errno N] ...: 'file'``),
-    with ``errno`` and ``filename`` set."""
-    e = cls(msg)
-    e.errno, e.filename = code, str(filename)  # str() stays msg: the classes are _Named
-    return e
 
 
 def commit_point(name: str) -> None:
@@ -140,143 +101,6 @@ def folder_mode() -> int:
         What a plain ``mkdir`` gives: 0o777 less the umask (``mkdtemp``'s 0o700 is not what a user expects).
     """
     return 0o777 & ~_umask()
-
-
-def no_space_error(err: OSError, where: str | os.PathLike, exact: bool = False) -> OSError:
-    """``err`` as a :class:`NoSpaceError` naming its file (else, or with ``exact``, ``where``) when it is
-    ENOSPC / EDQUOT, else ``err``."""
-    if getattr(err, "errno", None) not in _NO_SPACE or isinstance(err, NoSpaceError):
-        return err
-    name = where if exact or not err.filename else err.filename
-    return _err(NoSpaceError, err.errno, f"{name}: no space left on device (nothing was committed; free some space "
-                                         "and run again)", name)
-
-
-@contextlib.contextmanager
-def writing(path: str | os.PathLike) -> Iterator[None]:
-    """Name ``path`` in the failure of a write: ENOSPC / EDQUOT become
-    :class:`NoSpaceError` ("PATH: no space left on device"), and an encoder's
-    RuntimeError (OpenEXR's bindings raise one when the disk fills) a
-    NoSpaceError when the file system has no free block left, else an OSError
-    naming ``path``."""
-    try:
-        yield
-    except OSError as err:
-        named = no_space_error(err, path, exact=True)  # the file meant, not the writer's temporary name
-        if named is err:
-            raise
-        raise named from err
-    except RuntimeError as err:
-        folder = Path(path).parent
-        try:
-            full = os.statvfs(folder if str(folder) else ".").f_bavail == 0
-        except OSError:
-            full = False
-        if full:
-            raise no_space_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), path) from err
-        raise _err(WriteError, errno.EIO, f"{path}: cannot write ({err})", path) from err
-
-
-# ------------------------------------------------------------------ locking
-
-
-def _lock_path(folder: Path) -> Path:
-    return folder.parent / f".{folder.name}.lock"
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's live process
-        return True
-    return True
-
-
-class FolderLock:
-    """An exclusive lock on writing ``folder`` (module docstring, "Locking"); a
-    context manager. ``command`` is recorded for the error a second writer gets.
-    Raises :class:`FolderLockedError` naming the folder when a live process holds it."""
-
-    def __init__(self, folder: str | os.PathLike, command: str = "relight"):
-        self.folder = Path(folder)
-        self.path = _lock_path(self.folder)
-        self.command = command
-        self._fd: int | None = None
-
-    def acquire(self) -> FolderLock:
-        import fcntl
-
-        parent = self.path.parent if str(self.path.parent) else Path(".")
-        if not parent.is_dir():
-            raise FileNotFoundError(f"{self.folder}: cannot write, folder {parent} does not exist")
-        for _ in range(20):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                holder = _read_holder(fd)
-                os.close(fd)
-                raise _err(FolderLockedError, errno.EBUSY,
-                           f"{self.folder}: being written by another relight process ({holder}); wait for it to "
-                           f"finish or stop it (its lock: {self.path})", self.folder) from None
-            except OSError as err:  # no flock here (some network file systems): the PID decides
-                if not _take_by_pid(fd, self.folder, self.path, err):
-                    continue
-            # Whoever held it may have unlinked the file between our open and flock: lock the file on disk.
-            try:
-                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
-            except FileNotFoundError:
-                same = False
-            if not same:
-                os.close(fd)
-                continue
-            doc = {"pid": os.getpid(), "host": socket.gethostname(), "command": self.command,
-                   "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, json.dumps(doc).encode(), 0)
-            self._fd = fd
-            return self
-        raise _err(FolderLockedError, errno.EBUSY, f"{self.folder}: could not take its lock {self.path}", self.folder)
-
-    def release(self) -> None:
-        if self._fd is None:
-            return
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.path)  # before the close: a waiter re-checks the inode and retries
-        os.close(self._fd)
-        self._fd = None
-
-    def __enter__(self) -> FolderLock:
-        return self.acquire()
-
-    def __exit__(self, *exc) -> None:
-        self.release()
-
-
-def _read_holder(fd: int) -> str:
-    try:
-        doc = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
-        return f"pid {doc['pid']} on {doc.get('host', '?')}, `{doc.get('command', 'relight')}` since {doc['started']}"
-    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
-        return "pid unknown"
-
-
-def _take_by_pid(fd: int, folder: Path, path: Path, err: OSError) -> bool:
-    """Without flock: refuse if the recorded PID (on this host) is alive, else take the stale lock over."""
-    try:
-        doc = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
-    except (ValueError, UnicodeDecodeError):
-        doc = {}
-    pid = doc.get("pid")
-    if isinstance(pid, int) and pid != os.getpid() and doc.get("host") == socket.gethostname() and _pid_alive(pid):
-        os.close(fd)
-        raise _err(FolderLockedError, errno.EBUSY, f"{folder}: being written by another relight process (pid {pid}); "
-                                                   f"wait for it to finish or stop it (its lock: {path}; flock: {err})",
-                   folder) from None
-    return True
-
 
 # ------------------------------------------------------------------ the manifest
 
@@ -315,9 +139,17 @@ def _set_files(folder: Path, unhashed: Sequence[str]) -> Iterator[str]:
 
 
 def write_manifest(folder: str | os.PathLike, kind: str, unhashed: Sequence[str] = (), **extra) -> dict:
-    """Hash every file of the set in ``folder`` and write ``relight-set.json``
-    (module docstring) atomically; ``extra`` (JSON-able) is stored as it is.
-    Returns the manifest."""
+    """Hash every file of a set and write its manifest ``relight-set.json`` atomically.
+
+    Args:
+        folder: the set's folder.
+        kind: the set's kind (the command that writes it: "fit", "render", ...).
+        unhashed: path prefixes left out (a capture store's chunks, which their own manifest protects).
+        **extra: JSON-able fields stored as they are.
+
+    Returns:
+        The manifest (module docstring), as written.
+    """
     folder = Path(folder)
     files = {rel: {"size": (folder / rel).stat().st_size, "sha256": file_digest(folder / rel)}
              for rel in _set_files(folder, unhashed)}
@@ -330,7 +162,15 @@ def write_manifest(folder: str | os.PathLike, kind: str, unhashed: Sequence[str]
 
 
 def is_result_set(folder: str | os.PathLike, kind: str | None = None) -> bool:
-    """Whether ``folder`` holds a result-set manifest (of ``kind``, if given); the files are not checked."""
+    """Whether a folder holds a result-set manifest; its files are not checked.
+
+    Args:
+        folder: the folder.
+        kind: the kind the manifest must name, or None for any.
+
+    Returns:
+        True when ``folder/relight-set.json`` is a manifest (of ``kind``).
+    """
     p = Path(folder) / MANIFEST
     try:
         doc = json.loads(p.read_text())
@@ -340,10 +180,17 @@ def is_result_set(folder: str | os.PathLike, kind: str | None = None) -> bool:
 
 
 class ResultSet:
-    """An opened result set (:func:`open_result_set`): ``folder``, ``kind``,
-    ``generation``, ``files`` (the manifest's table) and the folder's inode.
-    :meth:`check` verifies files against the manifest; :meth:`unchanged`
-    that the folder was not swapped since it was opened."""
+    """An opened result set (:func:`open_result_set`).
+
+    Attributes:
+        folder: the set's folder.
+        manifest: the manifest as read.
+        kind, generation: the manifest's fields.
+        files: the manifest's table, relative POSIX path -> {"size", "sha256"}.
+
+    :meth:`check` verifies files against the manifest, :meth:`unchanged` that the folder was not swapped
+    since it was opened, and :meth:`add` lists new files in a finished set.
+    """
 
     def __init__(self, folder: Path, doc: dict, ino: int):
         self.folder, self.manifest, self._ino = folder, doc, ino
@@ -352,8 +199,15 @@ class ResultSet:
         self.files: dict = dict(doc.get("files") or {})
 
     def check(self, names: Iterable[str | os.PathLike] | None = None) -> None:
-        """Verify ``names`` (paths relative to the folder, or inside it; default: every listed file): each must
-        be listed, present, and of the listed size and SHA-256. ResultSetError naming the file otherwise."""
+        """Verify files against the manifest.
+
+        Args:
+            names: paths relative to the folder, or inside it; None: every listed file.
+
+        Returns:
+            None. Raises :class:`ResultSetError` naming the file when one is not listed, missing, or of
+            another size or SHA-256, or when the folder was replaced.
+        """
         rels = list(self.files) if names is None else [self._rel(n) for n in names]
         for rel in rels:
             path = self.folder / rel
@@ -372,7 +226,11 @@ class ResultSet:
         self.unchanged()
 
     def unchanged(self) -> None:
-        """ResultSetError if the folder was replaced (swapped) since it was opened."""
+        """Check that the folder was not replaced (swapped) since it was opened.
+
+        Returns:
+            None. Raises :class:`ResultSetError` if it was.
+        """
         try:
             ino = os.stat(self.folder).st_ino
         except FileNotFoundError:
@@ -421,10 +279,17 @@ class ResultSet:
 
 
 def open_result_set(folder: str | os.PathLike, kind: str | Sequence[str] | None = None) -> ResultSet:
-    """Open the result set in ``folder``: its manifest read and checked
-    (format, version, ``kind`` if given); the files are verified on demand
-    (:meth:`ResultSet.check`). Raises FileNotFoundError for a missing folder
-    and :class:`ResultSetError` (an ImageFormatError) naming the folder."""
+    """Open the result set in a folder: its manifest read and checked.
+
+    Args:
+        folder: the set's folder.
+        kind: the kind (or kinds) the set must be of; None: any.
+
+    Returns:
+        The :class:`ResultSet`; its files are verified on demand (:meth:`ResultSet.check`). Raises
+        FileNotFoundError for a missing folder and :class:`ResultSetError` naming the folder for a missing
+        or invalid manifest, a newer format version, or another kind.
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such folder")
@@ -456,7 +321,14 @@ _MARKERS = (("capture.json", "a capture folder"), ("relight-store.json", "a capt
 
 
 def describe_folder(folder: Path) -> str:
-    """A short description of what ``folder`` holds (for refusals)."""
+    """A short description of what a folder holds, for refusals.
+
+    Args:
+        folder: an existing folder.
+
+    Returns:
+        E.g. "a capture folder (capture.json, written by `relight simulate`)", or its first entries.
+    """
     by = ""
     if is_result_set(folder):
         by = f", written by `relight {json.loads((folder / MANIFEST).read_text()).get('kind')}`"
@@ -471,11 +343,21 @@ def describe_folder(folder: Path) -> str:
 
 def check_output_folder(folder: str | os.PathLike, kind: str, accept: Sequence[str] = (),
                         keep: Sequence[str] = (), legacy=None) -> None:
-    """Refuse ``folder`` as the output of a ``kind`` command unless it is
-    absent, empty, a result set of ``kind`` (or of a kind in ``accept``),
-    holds only the hidden entries ``keep`` (a fit's ``.parts``), or passes
-    ``legacy(folder)`` (a set of this kind written before manifests). Raises
-    :class:`ForeignFolderError` naming the folder and what it holds."""
+    """Refuse a folder as the output of a command unless the command may replace it.
+
+    Args:
+        folder: the output folder.
+        kind: the command's result-set kind.
+        accept: further kinds it may replace.
+        keep: hidden entries a folder may hold alone (a fit's ``.parts``).
+        legacy: ``legacy(folder) -> bool``, a folder of this kind written before manifests
+            (:func:`relight.results.earlier_output`).
+
+    Returns:
+        None when the folder is absent, empty, a result set of ``kind`` (or of a kind in ``accept``), holds
+        only ``keep``, or passes ``legacy``. Raises :class:`ForeignFolderError` naming the folder and what
+        it holds otherwise.
+    """
     folder = Path(folder)
     if not (folder.exists() or folder.is_symlink()):
         return
@@ -509,10 +391,17 @@ def _stale_names(folder: Path) -> list[Path]:
 
 
 def clean_stale(folder: str | os.PathLike) -> list[Path]:
-    """Delete what killed writers of ``folder`` left next to it (call with the
-    folder's lock held, so no live writer owns them). If ``folder`` is absent
-    and a complete old set was moved aside by the two-rename swap, it is put
-    back first. Returns the paths deleted (or restored)."""
+    """Delete what killed writers of a folder left next to it.
+
+    Call it with the folder's lock held, so that no live writer owns them. If the folder is absent and a
+    complete old set was moved aside by the two-rename swap, it is put back first.
+
+    Args:
+        folder: the output folder.
+
+    Returns:
+        The paths deleted (or restored).
+    """
     folder = Path(folder)
     stale = _stale_names(folder)
     done = []
@@ -559,11 +448,19 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def swap_into(tmp: Path, folder: Path) -> None:
-    """Put the finished folder ``tmp`` at ``folder``, replacing what is there
-    (the caller has checked that it may): one atomic exchange where the OS has
-    it, else the old folder moved aside (``.NAME.<random>.old/set``), the new
-    one renamed in, the old one deleted. The hidden entries of the old folder
-    that the new one lacks are not carried over (see :func:`result_set`'s ``keep``)."""
+    """Put a finished folder in place of another, whole.
+
+    One atomic exchange where the OS has it (Linux ``renameat2``), else the old folder moved aside
+    (``.NAME.<random>.old/set``), the new one renamed in, the old one deleted. The hidden entries of the old
+    folder that the new one lacks are not carried over (see :func:`result_set`'s ``keep``).
+
+    Args:
+        tmp: the finished folder (a sibling of ``folder``, on the same file system).
+        folder: where it goes (the caller has checked that it may replace what is there).
+
+    Returns:
+        None.
+    """
     if not (folder.exists() or folder.is_symlink()):
         os.replace(tmp, folder)
         commit_point("swapped")
@@ -633,27 +530,33 @@ def _commit(tmp: Path, folder: Path, keep: Sequence[str]) -> None:
 def result_set(folder: str | os.PathLike, kind: str, *, command: str | None = None, accept: Sequence[str] = (),
                keep: Sequence[str] = (), create: bool = True, unhashed: Sequence[str] = (),
                lock: bool = True, legacy=None, carry: bool = False, on_stale=None) -> Iterator[Path]:
-    """Write a result set of ``kind`` at ``folder`` as a unit (module docstring).
+    """Write a result set at a folder as a unit (module docstring); a context manager.
 
-    Takes ``folder``'s lock (:class:`FolderLock`), refuses a folder that is
-    not of this kind (:func:`check_output_folder` with ``accept`` / ``keep`` /
-    ``legacy``),
-    deletes what killed writers left (:func:`clean_stale`; ``on_stale(paths)``
-    is told), and yields the temporary folder to build the set in (created
-    unless ``create=False``: then the body creates it, e.g. by a folder
-    writer that renames its own result to that name). On a normal exit the
-    manifest is written (:func:`write_manifest`, ``unhashed`` prefixes not
-    hashed), the hidden entries ``keep`` of the old folder are moved into the
-    new one, the folder mode set to 0o777 less the umask, and the set swapped in;
-    on an exception the temporary folder is deleted and ``folder`` is left as
-    it was (ENOSPC becomes :class:`NoSpaceError` naming the file).
+    Takes the folder's lock (:class:`FolderLock`), refuses a folder that is not of this kind
+    (:func:`check_output_folder`), deletes what killed writers left (:func:`clean_stale`) and yields the
+    temporary sibling to build the set in. On a normal exit the manifest is written (:func:`write_manifest`),
+    the hidden entries ``keep`` of the old folder are moved into the new one, the folder mode set to 0o777
+    less the umask, and the set swapped in (:func:`swap_into`); on an exception the temporary folder is
+    deleted and the folder is left as it was (ENOSPC becomes :class:`NoSpaceError` naming the file).
 
-    ``carry=True`` (a library writer that adds its files to a user's folder,
-    e.g. ``write_maps`` into a folder holding a rig.json): any folder is
-    taken, and the entries of the old folder that the new set does not write
-    are hard-linked (copied where links fail) into it before the manifest, so
-    they survive the swap and are listed; the originals stay in place until
-    the swap, so a killed run loses nothing.
+    Args:
+        folder: the output folder.
+        kind: the set's kind (the manifest's "kind").
+        command: recorded in the lock (default ``relight <kind>``).
+        accept, keep, legacy: :func:`check_output_folder`'s.
+        create: make the temporary folder (False: the body creates it, e.g. a folder writer that renames
+            its own result to that name).
+        unhashed: path prefixes the manifest does not hash.
+        lock: take the folder's lock (False: the caller holds it).
+        carry: a library writer adding its files to a user's folder (``write_maps`` into a folder holding a
+            rig.json): any folder is taken, and the entries of the old folder that the new set does not
+            write are hard-linked (copied where links fail) into it before the manifest, so they survive
+            the swap and are listed; the originals stay in place until the swap, so a killed run loses
+            nothing.
+        on_stale: called with the paths :func:`clean_stale` deleted, if any.
+
+    Returns:
+        The context manager; its value is the temporary folder (a Path).
     """
     folder = Path(folder)
     parent = folder.parent if str(folder.parent) else Path(".")

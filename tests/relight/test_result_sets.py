@@ -30,6 +30,7 @@ from relight.results import (
     ForeignFolderError,
     NoSpaceError,
     ResultSetError,
+    WriteError,
     clean_stale,
     open_result_set,
     result_set,
@@ -159,7 +160,7 @@ def test_an_encoder_runtime_error_on_a_full_disk_is_named(tmp_path, monkeypatch)
     class Full:
         f_bavail = 0
 
-    with pytest.raises(rsm.WriteError, match=r"a\.exr: cannot write \(boom\)"):
+    with pytest.raises(WriteError, match=r"a\.exr: cannot write \(boom\)"):
         with writing(path):
             raise RuntimeError("boom")
     monkeypatch.setattr(rsm.os, "statvfs", lambda _: Full())
