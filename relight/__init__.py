@@ -2,8 +2,10 @@
 (``relight.envmap``), material maps (``relight.materials``), fitting with
 Optimistix (``relight.fitting``), image-based and model-based relighting
 (``relight.render``), preview images (``relight.image``), learned lighting
-patterns (``relight.patterns``), the results viewer (``relight.view``) and the
-``relight`` CLI (``relight.cli``, loaded on demand). See docs/ARCHITECTURE.md.
+patterns (``relight.patterns``), the results viewer (``relight.view``), result
+sets and atomic writes (``relight.results``), exporters (``relight.export``)
+and the ``relight`` CLI (``relight.cli``, loaded on demand). See
+docs/ARCHITECTURE.md.
 
 The subpackages and the names re-exported here load on first use (PEP 562),
 so ``relight --help`` and ``relight --version`` start without JAX."""
