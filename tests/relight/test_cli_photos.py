@@ -148,8 +148,8 @@ def test_photo_capture_refuses_model_flags(tmp_path, const_env, rig, capsys):
 
 def test_simulate_image_space_round_trip(tmp_path, const_env, grad_env):
     """relight simulate --space image writes a photo capture that relight render relights."""
-    from stage import front_camera
     from relight.io import read_photo_capture
+    from stage import front_camera
 
     mesh = stage.load_head()
     front = front_camera(mesh, 16)
