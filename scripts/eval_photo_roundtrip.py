@@ -5,7 +5,7 @@
 
 Per scene and camera count: `relight simulate --space image` (the CLI itself,
 so the demo's skin material: rho_d varying over the UVs, F0 0.028, alpha
-0.2-0.5, `relight.cli._common.demo_material`) writes a camera-space photo
+0.2-0.5, `relight.materials.demo_material`) writes a camera-space photo
 capture; `relight.io.photos_to_texels` resamples it onto the mesh's texel
 grid; `relight.fit(model="ggx")` fits it; the fitted maps are compared with
 `demo_material` evaluated on the texel surface. Scenes:
@@ -41,7 +41,7 @@ FACE = ROOT.parent / "shared" / "data" / "meshes" / "mediapipe_canonical_face.ob
 
 def _cameras(mesh, n: int, size: int):
     """1: the CLI's front camera; n > 1: a ring at its distance over 80 degrees."""
-    from relight.cli._common import front_ring
+    from stage import front_ring
 
     return front_ring(mesh, n, size)
 
@@ -50,7 +50,7 @@ def run_scene(name, mesh_args, mesh, rig_arg, n_cams, args, work: Path) -> dict:
     import relight
     import stage
     from relight.cli import main
-    from relight.cli._common import demo_material
+    from relight.materials import demo_material
     from relight.io import photos_to_texels, read_photo_capture
 
     cams = _cameras(mesh, n_cams, args.image_size)

@@ -213,7 +213,7 @@ def test_round_trip_on_the_mediapipe_face_in_cm(shared_data, tmp_path):
     64 texels give 0.001, docs/capture_layout.md); 0.03 leaves room for the
     coarse 40 px footprint."""
     from relight.cli import main
-    from relight.cli._common import demo_material
+    from relight.materials import demo_material
     from relight.io import mesh_spec, spec_mesh
 
     face = shared_data / "meshes" / "mediapipe_canonical_face.obj"
