@@ -50,8 +50,8 @@ def run_scene(name, mesh_args, mesh, rig_arg, n_cams, args, work: Path) -> dict:
     import relight
     import stage
     from relight.cli import main
-    from relight.materials import demo_material
     from relight.io import photos_to_texels, read_photo_capture
+    from relight.materials import demo_material
 
     cams = _cameras(mesh, n_cams, args.image_size)
     photos = work / f"{name}_{n_cams}cam"

@@ -213,8 +213,8 @@ def test_round_trip_on_the_mediapipe_face_in_cm(shared_data, tmp_path):
     64 texels give 0.001, docs/capture_layout.md); 0.03 leaves room for the
     coarse 40 px footprint."""
     from relight.cli import main
-    from relight.materials import demo_material
     from relight.io import mesh_spec, spec_mesh
+    from relight.materials import demo_material
 
     face = shared_data / "meshes" / "mediapipe_canonical_face.obj"
     if not face.is_file():
