@@ -190,19 +190,32 @@ class _Renderer:
 def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
                 *, method: str | AbstractMethod = "rig", supersample: int = 2, background: bool = True, key=None,
                 progress: stage.Progress | None = None, **settings) -> np.ndarray:
-    """Render the texel-space ``maps`` (over ``texel_surface``, from
-    ``stage.texel_samples(mesh, ...)``) on ``mesh`` as ``camera`` sees it under
-    ``env``: an image [H, W, 3] float32 of radiance (the environment's units).
+    """The texel-space maps on the mesh as a camera sees them under an environment map.
 
-    Primary visibility by ray casting (``stage.image_samples`` on a
-    ``supersample`` x ``supersample`` sub-pixel grid), maps bilinear in texture
-    space at the hits' uv, shading by ``method`` (see
-    :func:`relight.render.render_samples` for the methods and ``settings``)
-    with shadows cast by ``mesh``, box filter down to the camera's pixels.
-    ``background``: rays that miss see the (rotated) environment, else 0.
-    ``progress(phase, 0, None)`` (``stage.Progress``) is called as each phase starts. Visibility is
-    per pixel sample: cost grows with (W H supersample^2) x directions for
-    "rig"/"dense"/"lights" and x samples for "reference".
+    Primary visibility by ray casting (``stage.image_samples`` on a ``supersample`` x ``supersample``
+    sub-pixel grid), maps bilinear in texture space at the hits' uv, shading by ``method`` with
+    shadows cast by ``mesh`` (the method's ``prepare``, ``geometry`` and ``shade``), box filter down
+    to the camera's pixels. The subsurface exitance is computed on the texel samples and looked up
+    per pixel. Visibility is per pixel sample: cost grows with (W H supersample^2) x directions for
+    the directional methods and x samples for ``Reference``.
+
+    Args:
+        maps: ``relight.MaterialMaps`` over ``texel_surface``.
+        texel_surface: the maps' samples (``stage.texel_samples(mesh, ...)`` or its covered subset).
+        mesh: ``stage.Mesh`` with UVs.
+        camera: ``stage.Camera``.
+        env: ``relight.envmap.EnvMap``.
+        method: a method Module (``Rig``, ``Dense``, ``Lights``, ``Fast``, ``Reference``) or its string
+            spelling with its keyword settings (see :func:`relight.render.render_samples`).
+        supersample: sub-pixels per pixel side (>= 1).
+        background: rays that miss see the (rotated) environment, else 0.
+        key: ``jax.random`` key of ``Reference``.
+        progress: ``progress(phase, 0, None)`` (``stage.Progress``), called as each phase starts.
+        **settings: the shared settings of :func:`relight.render.render_samples` (``rotation``,
+            ``eta``, ``chunk``, ``operator``, ``dtype``, ``terminator``).
+
+    Returns:
+        float32 [H, W, 3] radiance (the environment's units).
     """
     _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
     r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)

@@ -1,11 +1,12 @@
 """Rotation sweeps for the viewer's slider: the subject relit under the environment turned about +y in
 ``frames`` equal steps, tone-mapped at one exposure for every frame (so the frames compare).
 
-* :func:`capture_sweep`: image-based (Debevec et al. 2000) from a texel-space capture: the light weights of
-  every rotation (``relight.envmap.rotation_sweep_weights``), one pass over the OLAT stack for all of them
-  (``relight.render.relight_olat_sweep``), each texel from its nearest captured view
-  (``relight.render.nearest_view``), and one ray cast of the camera for all frames. Memory speed.
-* :func:`photo_sweep`: the same for one camera's photographs (no geometry).
+* :func:`capture_sweep`: image-based (Debevec et al. 2000) from a texel-space capture
+  (``relight.render.image_based_view``: the light weights of every rotation, one pass over the OLAT stack for
+  all of them, each texel from its nearest captured view, one ray cast of the camera per group of frames).
+  Memory speed.
+* :func:`photo_sweep`: the same for one camera's photographs (no geometry,
+  ``relight.render.relight_photographs``).
 * :func:`maps_sweep`: model-based from a map set (``relight.render.turntable``, which casts the camera's and
   the shadow rays once and reweights the lights per frame), at a low resolution.
 * :func:`frames_sweep`: frames that already exist (a ``relight render --frames N`` turntable's PNGs).
