@@ -4,6 +4,7 @@ float64 or int -> float mixing), warnings are errors, and every function in brdf
 skin_bssrdf, stage and relight has its jaxtyping annotations checked at call time
 (pyproject's --jaxtyping-packages, with the checker in tests/helpers.py)."""
 
+import importlib.util
 import os
 import shutil
 import tempfile
@@ -58,6 +59,21 @@ def _small_index_pages(request, monkeypatch):
         module = importlib.import_module(f"relight.cli.{name}")
         monkeypatch.setattr(module, "INDEX_FRAMES", 2)
         monkeypatch.setattr(module, "INDEX_SIZE", 32)
+
+
+if importlib.util.find_spec("xdist") is not None:
+
+    def pytest_xdist_make_scheduler(config, log):
+        """``-n N`` schedules by work stealing instead of xdist's default ``load``: each worker starts on one
+        contiguous half of the collection and steals from the end of another's queue when it runs dry. ``load``
+        hands out many small consecutive chunks, so the tests of one module land on both workers and the
+        module-scoped fixtures (simulated captures, CLI runs) are built twice; work stealing splits a module
+        only at a steal. An explicit ``--dist`` other than ``load`` is left alone."""
+        if config.getvalue("dist") != "load":
+            return None
+        from xdist.scheduler import WorkStealingScheduling
+
+        return WorkStealingScheduling(config, log)
 
 
 def pytest_sessionfinish(session):
