@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 from relight.cli import main
-from relight.fitting import fit_parts
-from relight.io import load_texel_capture, open_capture_store, read_maps
-from relight.io._texel import SampleSubset, open_texel_capture
+from relight.fitting import FitOptions, fit_resumable
+from relight.io import SampleSubset, load_texel_capture, open_capture_store, open_texel_capture, read_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 MAPS = ("albedo", "specular", "alpha", "normal", "model")
@@ -134,7 +133,8 @@ def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
             raise _Killed
 
     with pytest.raises(_Killed):
-        fit_parts(c, surface, out / ".parts", block=BLOCK, solver="lm", devices=None, on_block=stop_after_two)
+        fit_resumable(c, surface, out / ".parts", solver="lm",
+                      options=FitOptions(block=BLOCK, on_block=stop_after_two))
     assert len(list((out / ".parts").glob("part_*.npz"))) == 2
     assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet"]) == 0
     rep = _report(out)["parts"]
