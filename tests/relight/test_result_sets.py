@@ -315,12 +315,13 @@ def test_render_refuses_a_non_finite_rotation_before_writing(dome12, capsys, val
 
 
 def test_render_full_disk_names_the_file(dome12, capsys, monkeypatch):
-    import relight.cli.render as cli_render
+    import relight.io
 
     def full(path, *a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(cli_render, "write_exr", full)
+    # render_folder looks relight.io.write_exr up at each call, so a full disk there reaches the command.
+    monkeypatch.setattr(relight.io, "write_exr", full)
     out = dome12 / "r_full"
     assert main(["render", str(dome12 / "cap"), "--out", str(out), "--image-size", "16", "--quiet"]) == 1
     err = capsys.readouterr().err
