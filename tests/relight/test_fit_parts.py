@@ -2,6 +2,7 @@
 resumed after an interruption, split over processes (jax.distributed on CPU), and merged: always the
 Fit of one relight.fit call with the same block, bit for bit; a set of another fit is refused."""
 
+import dataclasses
 import json
 import os
 import socket
@@ -16,7 +17,7 @@ import pytest
 
 import stage
 from relight import fit
-from relight.fitting import PartsFingerprintError, PartsIncompleteError, fit_parts, merge_parts
+from relight.fitting import FitOptions, PartsFingerprintError, PartsIncompleteError, fit_parts, merge_parts
 
 from ..scenes import noisy_ggx_sphere
 
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 FIELDS = ("rho_d", "rho_s", "alpha", "normal", "tangent", "model", "residual", "heldout", "result", "steps",
           "observed", "uncertainty")
 # Few, short LM rounds: the test is of bookkeeping, not of convergence.
-FAST = dict(chunk=16, rounds=2, steps_per_round=5)
+FAST = FitOptions(chunk=16, rounds=2, steps_per_round=5)
 BLOCK = 24
 
 
@@ -42,7 +43,7 @@ def scene():
 @pytest.fixture(scope="module")
 def reference(scene):
     cap, surface = scene
-    return fit(cap, surface, block=BLOCK, **FAST)
+    return fit(cap, surface, options=dataclasses.replace(FAST, block=BLOCK))
 
 
 def _assert_same(a, b, atol=0.0):
@@ -72,7 +73,7 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
     n_blocks = -(-P // BLOCK)
     assert n_blocks >= 3
 
-    whole = fit_parts(cap, surface, tmp_path / "whole", block=BLOCK, **FAST)
+    whole = fit_parts(cap, surface, tmp_path / "whole", block=BLOCK, options=FAST)
     assert sorted(p.name for p in whole.glob("part_*.npz")) == sorted(
         f"part_{s}_{min(s + BLOCK, P)}.npz" for s in range(0, P, BLOCK))
     _assert_same(merge_parts(whole, surface), reference)
@@ -81,26 +82,26 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
         raise _Killed(start)
 
     with pytest.raises(_Killed):
-        fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=kill, **FAST)
+        fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=kill, options=FAST)
     assert [p.name for p in (tmp_path / "cut").glob("part_*.npz")] == [f"part_0_{BLOCK}.npz"]
     with pytest.raises(PartsIncompleteError, match=f"{n_blocks - 1} of {n_blocks} blocks"):
         merge_parts(tmp_path / "cut", surface)
     done = []
-    fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=lambda s, e, a: done.append((s, e)), **FAST)
+    fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=lambda s, e, a: done.append((s, e)), options=FAST)
     assert [s for s, _ in done] == list(range(BLOCK, P, BLOCK))
     _assert_same(merge_parts(tmp_path / "cut", surface), reference)
 
     # A finished set: no block fitted, no progress reported.
     calls = []
     fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda *a: calls.append(a),
-              progress=lambda *a: calls.append(a), **FAST)
+              options=dataclasses.replace(FAST, progress=lambda *a: calls.append(a)))
     assert calls == []
 
     # A deleted part: refused by merge, then refitted alone.
     (whole / f"part_{BLOCK}_{2 * BLOCK}.npz").unlink()
     with pytest.raises(PartsIncompleteError, match=f"{BLOCK}..{2 * BLOCK}"):
         merge_parts(whole, surface)
-    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), **FAST)
+    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
     assert calls == [(BLOCK, 2 * BLOCK)]
     _assert_same(merge_parts(whole, surface), reference)
 
@@ -110,7 +111,7 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
     with pytest.raises(PartsFingerprintError, match="unreadable"):
         merge_parts(whole, surface)
     calls.clear()
-    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), **FAST)
+    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
     assert calls == [((n_blocks - 1) * BLOCK, P)]
     _assert_same(merge_parts(whole, surface), reference)
 
@@ -122,22 +123,22 @@ def test_another_fit_is_refused(scene, tmp_path):
     cap, surface = scene
     P = surface.num_samples
     block = P  # one block: the cheapest set
-    a = fit_parts(cap, surface, tmp_path / "a", block=block, **FAST)
+    a = fit_parts(cap, surface, tmp_path / "a", block=block, options=FAST)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(cap, surface, a, block=block, **dict(FAST, cauchy=0.2))
+        fit_parts(cap, surface, a, block=block, options=FAST, cauchy=0.2)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(cap, surface, a, block=block - 1, **FAST)
+        fit_parts(cap, surface, a, block=block - 1, options=FAST)
     rad = np.asarray(cap.radiance).copy()
     rad[0, 3, P - 1, 1] *= 1.0 + 1e-6  # one value of the last sample, changed by one part in a million
     other = stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(other, surface, a, block=block, **FAST)
+        fit_parts(other, surface, a, block=block, options=FAST)
     # The same settings: accepted, nothing refitted.
     calls = []
-    fit_parts(cap, surface, a, block=block, on_block=lambda *x: calls.append(x), **FAST)
+    fit_parts(cap, surface, a, block=block, on_block=lambda *x: calls.append(x), options=FAST)
     assert calls == []
 
-    b = fit_parts(other, surface, tmp_path / "b", block=block, **FAST)
+    b = fit_parts(other, surface, tmp_path / "b", block=block, options=FAST)
     part = f"part_0_{P}.npz"
     (a / part).write_bytes((b / part).read_bytes())  # b's part under a's manifest
     with pytest.raises(PartsFingerprintError, match=part):
@@ -149,10 +150,10 @@ def test_another_fit_is_refused(scene, tmp_path):
     with pytest.raises(PartsFingerprintError, match="another surface"):
         merge_parts(b, moved)
     with pytest.raises(ValueError, match="process_index"):
-        fit_parts(cap, surface, a, block=block, process_index=2, process_count=2, **FAST)
+        fit_parts(cap, surface, a, block=block, process_index=2, process_count=2, options=FAST)
 
     # overwrite=True: a's set replaced by other's, and it merges to other's set.
-    fit_parts(other, surface, a, block=block, overwrite=True, **FAST)
+    fit_parts(other, surface, a, block=block, overwrite=True, options=FAST)
     _assert_same(merge_parts(a, surface), merge_parts(b, surface))
 
 
@@ -168,7 +169,7 @@ _WORKER = textwrap.dedent("""
     assert (jax.process_index(), jax.process_count()) == ({pid}, 2)
     cap, surface = _scene()
     done = []
-    fit_parts(cap, surface, {folder!r}, block=BLOCK, on_block=lambda s, e, a: done.append(s), **FAST)
+    fit_parts(cap, surface, {folder!r}, block=BLOCK, on_block=lambda s, e, a: done.append(s), options=FAST)
     print("BLOCKS", {pid}, done)
     jax.distributed.shutdown()
 """)
