@@ -215,7 +215,7 @@ def main(argv=None):
 
     # scipy on a random subset, same start, same objective.
     from relight.fitting._model import Layout
-    from relight.materials._maps import GGX
+    from relight.materials import GGX
 
     floor = relight.rig_alpha_floor(rig)
     lay = Layout(GGX, True, floor)

@@ -19,10 +19,11 @@ import numpy as np
 import optimistix as optx
 from _common import parser
 
+from relight.fitting import NormalLevenbergMarquardt
 from relight.fitting import _model as _fit_model
 from relight.fitting import _solvers as _fit
-from relight.fitting._lm import NormalLevenbergMarquardt
-from relight.fitting._model import GGX, Layout
+from relight.fitting._model import Layout
+from relight.materials import GGX
 
 PC, N = 256, 192  # texels per chunk, observations per texel
 
