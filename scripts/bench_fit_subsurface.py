@@ -65,7 +65,8 @@ def scene(res, dome, seed=0):
                            "smith")
     prof = skin_bssrdf.Burley.from_mean_free_path(A, jnp.asarray(truth), config="dmfp")
     op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), RADIUS_MM)
-    cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, 1.4))
+    cap = stage.simulate(surface, rig, [cam], spec, lv, cv,
+                         subsurface=stage.Subsurface(prof, op, skin_bssrdf.SKIN_ETA))
     eps = 1 + 0.01 * np.random.default_rng(seed).standard_normal(cap.radiance.shape)
     cap = stage.Capture(cap.radiance * jnp.asarray(eps, cap.radiance.dtype), cap.mask, cap.rig, cap.cameras)
     return surface, cap, truth, op
@@ -79,7 +80,7 @@ def timed(fn, repeat=1):
     return out, (time.perf_counter() - t) / repeat
 
 
-def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=1.4):
+def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=skin_bssrdf.SKIN_ETA):
     """(ln mfp [n, C], seconds): scipy least_squares per texel and channel, the LM's residual and prior."""
     y, valid, E, wo, _ = sss._terms(cap, surface, fitted, eta)
     op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), RADIUS_MM)

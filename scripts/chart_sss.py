@@ -133,7 +133,7 @@ def main(argv=None):
         rows.append((res, P, "texture-space sum of Gaussians", ms, t_build * 1e3, rel_rms(out[pick], M_ref)))
         # sparse kernel with each profile
         for name, prof in profiles.items():
-            radius = float(np.max(np.asarray(sb.energy_radius(prof, 0.99))))
+            radius = sb.operator_radius(prof)
             t = time.perf_counter()
             ops = sb.DiffusionOperator.build(pos, np.asarray(surf.area), radius, dtype=f32)
             t_build = time.perf_counter() - t

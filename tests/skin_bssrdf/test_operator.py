@@ -12,7 +12,7 @@ from tests.scenes import texel_grid
 
 # A short-range material (r99 ~ 2.4 mm) keeps the neighbour lists small.
 PROFILE = sb.Dipole(jnp.array([0.5, 0.9]), jnp.array([2.0, 2.5]), 1.3)
-RADIUS = float(np.max(np.asarray(sb.energy_radius(PROFILE, 0.99))))
+RADIUS = sb.operator_radius(PROFILE)
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +71,7 @@ def test_symmetric_for_equal_areas(grid):
 def test_converges_as_spacing_shrinks(profile, bound):
     # exitance at the centre of a patch under uniform light against the exact (total - tail);
     # only the centre is a receiver, every sample of the patch a source
-    radius = float(np.max(np.asarray(sb.energy_radius(profile, 0.99))))
+    radius = sb.operator_radius(profile)
     exact = np.asarray(profile.cumulative(radius))
     errs = []
     for h in (0.4, 0.2, 0.1):
@@ -166,7 +166,7 @@ def test_no_seam_on_uv_seamed_head(shared_data):
     # a wide profile (sigma 2-8 mm, several texels at this resolution) and irradiance smooth in 3-D
     prof = sb.SumOfGaussians(jnp.full((3, 1), 0.3), jnp.array([4.0, 16.0, 64.0]))
     E = jnp.asarray(1 + 0.5 * np.sin(2 * np.pi * pos[:, :1] / 40.0))
-    radius = float(sb.energy_radius(prof, 0.99)[0])
+    radius = sb.operator_radius(prof)
     M = np.asarray(sb.DiffusionOperator.build(pos, area, radius).apply(prof, E, normalize=True))[:, 0]
     T = np.asarray(sb.TextureSpaceDiffusion.build(ti, surf.resolution, pos).apply(prof, E))[:, 0]
     # neighbours in 3-D (within one texel spacing) far apart in the texture: across a UV seam

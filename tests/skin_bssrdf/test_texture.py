@@ -71,7 +71,7 @@ def test_agrees_with_sparse_operator_on_a_plane():
     E = jnp.asarray(np.where(pos[:, :1] > 7.9, 1.0, 0.05) * np.ones((1, 3)))  # a shadow edge
     tsd = sb.TextureSpaceDiffusion.build(tex, (H, W), pos)
     T = np.asarray(tsd.apply(prof, E))
-    radius = float(np.max(np.asarray(sb.energy_radius(prof, 0.99))))
+    radius = sb.operator_radius(prof)
     inner = np.all((pos[:, :2] > radius) & (pos[:, :2] < h * (H - 1) - radius), axis=1)
     inner &= np.arange(H * W) % 3 == 0  # a third of the interior as receivers is plenty
     ops = sb.DiffusionOperator.build(pos, area, radius, receivers=np.flatnonzero(inner))
