@@ -204,12 +204,18 @@ def test_bitangent_is_the_stored_images_up(head):
 
 # --- the mapping --------------------------------------------------------------------------------------------------
 
+@pytest.fixture(scope="module")
+def texture_grid_samples(head):
+    """20000 samples of the head's 1024^2 texel grid (rasterised once for both filters)."""
+    s = stage.texel_samples(head, 1024)
+    return s.subset(np.random.default_rng(0).choice(s.num_samples, 20000, replace=False))
+
+
 @pytest.mark.parametrize("filter", ["box", "bilinear"])
-def test_filters_at_texture_resolution_return_the_texture(head, textures, filter):
+def test_filters_at_texture_resolution_return_the_texture(texture_grid_samples, textures, filter):
     """At a 1024^2 grid over the 1024^2 maps both filters return texel (row, column) = the sample's grid cell
     (measured max error 3.5e-8: the float32 uv)."""
-    s = stage.texel_samples(head, 1024)
-    s = s.subset(np.random.default_rng(0).choice(s.num_samples, 20000, replace=False))
+    s = texture_grid_samples
     idx = np.asarray(s.texel_index)
     row, col = idx // 1024, idx % 1024
     t = M.skin_maps(s, textures, filter=filter)
