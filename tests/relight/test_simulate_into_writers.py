@@ -2,6 +2,7 @@
 stage.CaptureWriter s and hold what the stream wrote, on the full texel grid."""
 
 import numpy as np
+import pytest
 
 import brdf
 import stage
@@ -41,3 +42,20 @@ def test_folder_and_store_writers_hold_the_stream(tmp_path):
     np.testing.assert_array_equal(np.broadcast_to(f.valid, mask_s.shape), mask_s)
     np.testing.assert_allclose(rad_s, f.radiance, rtol=1e-6, atol=0)
     assert mask_s.sum() > 0 and not mask_s[:, :, np.setdiff1d(np.arange(RES * RES), seen)].any()
+
+
+def test_simulate_texel_capture_names_its_arguments_in_errors(tmp_path):
+    """relight.io.simulate_texel_capture's ValueErrors start with the argument they are about (the CLI turns
+    them into errors naming its flags); nothing is left at ``out``."""
+    from relight.io import MeanFreePath, simulate_texel_capture
+
+    mesh = uv_sphere(radius=50.0, n_lat=12, n_lon=24)
+    rig = stage.geodesic_dome(0)
+    away = stage.look_at((0.0, 0.0, 1000.0), target=(0.0, 0.0, 2000.0), fov_deg=8, width=24, height=24)
+    front = stage.look_at((0.0, 0.0, 1000.0), fov_deg=8, width=24, height=24)
+    with pytest.raises(ValueError, match="^cameras: no texel"):
+        simulate_texel_capture(tmp_path / "a", mesh, RES, rig, [away], surface_info={})
+    with pytest.raises(ValueError, match="^mean_free_path: the mean free path is 0"):
+        simulate_texel_capture(tmp_path / "b", mesh, RES, rig, [front], surface_info={},
+                               subsurface=MeanFreePath(np.zeros((4, 4, 3))))
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
