@@ -26,7 +26,8 @@ import stage
 from ..materials._maps import MaterialMaps
 from ._capture import CaptureReader, open_capture
 from ._errors import ImageFormatError
-from ._store import is_capture_store, open_capture_store
+from ._store import is_capture_store
+from ._store_reader import open_capture_store
 from ._texture_set import TextureSet, read_maps
 
 __all__ = ["SampleSubset", "TexelCapture", "TexelMaps", "load_texel_capture", "load_texel_maps", "mesh_size_warning",

@@ -1,4 +1,4 @@
-"""Capture stores (relight.io._store): Zarr v3 on disk, chunked for the fitter.
+"""Capture stores (relight.io._store, _store_reader): Zarr v3 on disk, chunked for the fitter.
 
 Round trips folder -> store -> folder bit for bit (float32 and half), the
 streaming writer against stage.simulate, chunked reads that cover every sample
