@@ -61,7 +61,7 @@ def _stats(values, where) -> dict:
     return {"samples": n, "median": float(np.median(v)), "p95": float(np.percentile(v, 95))}
 
 
-def truth_errors(fitted, truth, normals: bool = False) -> dict:
+def truth_errors(fitted, truth, normals: bool = False, seen=None) -> dict:
     """Every map's error of a fit against the true maps, over the seen and over the unflagged samples.
 
     Args:
@@ -69,16 +69,17 @@ def truth_errors(fitted, truth, normals: bool = False) -> dict:
             ``failed``.
         truth: the true :class:`relight.MaterialMaps` at the same samples.
         normals: also compare the shading normals (fitted with ``normals=True``).
+        seen: bool [P], the samples counted as seen; None: those with observations (``observed > 0``).
 
     Returns:
         ``{"seen_samples", "unflagged_samples", "errors": {name: {"what", "all_seen", "unflagged"}}}``:
-        each row (``ERROR_ROWS``) over the samples with observations (flagged ones included: their maps
-        are what the fit wrote) and over the unflagged ones, each ``{"samples", "median", "p95"}``.
+        each row (``ERROR_ROWS``) over the seen samples (flagged ones included: their maps are what the
+        fit wrote) and over the seen unflagged ones, each ``{"samples", "median", "p95"}``.
         Roughness is over the samples whose fitted and true rung both have a lobe (a Lambert sample's
         roughness is a placeholder), specular albedo where the truth has one, the mean free path rows
         only when the truth scatters somewhere (per texel-channel).
     """
-    seen = np.asarray(fitted.observed) > 0
+    seen = np.asarray(fitted.observed) > 0 if seen is None else np.asarray(seen, bool).reshape(-1)
     ok = seen & ~np.asarray(fitted.failed, bool)
     f_model, t_model = np.asarray(fitted.model).reshape(-1), np.asarray(truth.model).reshape(-1)
     every = np.ones_like(seen)
@@ -128,7 +129,8 @@ def read_truth(capture_dir: str | os.PathLike, surface):
     return textures.maps(surface)
 
 
-def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: dict | None = None) -> dict:
+def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: dict | None = None,
+               seen=None) -> dict:
     """The report of a fit: flagged fraction, residuals, steps, rungs and, with a truth, every map's error.
 
     Args:
@@ -137,6 +139,8 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
         truth: the true :class:`relight.MaterialMaps` at the same samples (a simulation's), or None.
         normals: the fit fitted shading normals (their angle to the truth's is reported).
         timings: seconds per stage (``{"fit_s": ...}``), reported rounded to the millisecond.
+        seen: bool [P], the samples the truth errors count as seen (:func:`truth_errors`); None: those
+            with observations.
 
     Returns:
         A JSON-able dict: ``samples``, ``failed_fraction``, ``residual_rms_median`` (unflagged samples),
@@ -165,7 +169,7 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
             r[f"{name}_fraction"] = float(np.mean(np.asarray(getattr(fitted, name))))
     if truth is not None:
         # Every sample flagged (e.g. a 12-light dome leaves fewer than 8 valid lights a texel): nothing to compare.
-        r["against_truth"] = truth_errors(fitted, truth, normals=normals) if (~failed).any() else None
+        r["against_truth"] = truth_errors(fitted, truth, normals=normals, seen=seen) if (~failed).any() else None
     return r
 
 

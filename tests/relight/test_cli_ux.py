@@ -266,6 +266,9 @@ def test_errors_over_all_seen_and_unflagged_texels_with_counts():
     assert e["normal_deg"]["unflagged"]["median"] == pytest.approx(1.0, abs=1e-6)
     assert "normal_deg" not in truth_errors(fitted, truth)["errors"]
     assert not any(k.startswith("mfp") for k in a["errors"])  # the truth does not scatter
+    # seen=: the demo counts every texel a camera sees, observations or not (here the unseen sixth too).
+    every = truth_errors(fitted, truth, seen=np.ones(P, bool))
+    assert every["seen_samples"] == 6 and every["errors"]["diffuse_albedo_rel"]["all_seen"]["samples"] == 6
 
 
 def test_upscale_nearest_keeps_texels_square():
