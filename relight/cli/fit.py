@@ -1,15 +1,7 @@
-"""``relight fit``: fit per-texel reflectance to a texel-space capture folder
-or store, to a camera-space photo capture (docs/capture_layout.md) resampled
-onto a mesh's texel grid (``relight.io.photos_to_texels``), or to a DiLiGenT
-object (``relight.fitting.fit_diligent``), and write the texture set, a
-Mitsuba 3 scene, previews and a report (``relight.fitting.fit_report``).
-
-The fit streams (docs/scaling.md): ``relight.fitting.fit_resumable`` reads the
-capture ``--block`` texels at a time on ``--devices`` and writes each finished
-block to ``OUT/.parts/``; ``--resume`` keeps the parts of an earlier run of the
-same fit. ``--subsurface region|texel|auto`` then runs
-``relight.fitting.subsurface_step`` (the capture loaded whole: the diffusion
-operator couples texels). docs/cli.md shows the same in Python."""
+"""``relight fit``: a texel-space capture (``relight.fitting.fit_resumable``, then with --subsurface
+``subsurface_step``), a photo capture (``relight.io.photos_to_texels`` first) or a DiLiGenT object
+(``relight.fitting.fit_diligent``) fitted and written with its report (``relight.fitting.write_fit_folder``).
+docs/cli.md shows the same in Python."""
 
 from __future__ import annotations
 
@@ -149,8 +141,7 @@ def run(args) -> int:
 
 
 def _fit(args, capture, surface, out: Path, kwargs: dict, devices, metadata: dict, times: dict):
-    """The BRDF fit in resumable parts (``out/.parts``, which survives a killed run), then the subsurface step
-    with --subsurface: (Fit, the report's parts entry, the subsurface settings or None)."""
+    """The fit in resumable parts (out/.parts), then --subsurface's step: (Fit, parts entry, settings|None)."""
     from ..fitting import FitOptions, PartsFingerprintError, fit_resumable, subsurface_step
     from ..io import read_regions
     from ..results import commit_point
@@ -185,8 +176,7 @@ def _fit(args, capture, surface, out: Path, kwargs: dict, devices, metadata: dic
 
 def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, envmap: Path, out: Path,
                tmp: Path) -> int:
-    """The fit of a texel-space or photo capture into the result set built at ``tmp`` (swapped to ``out``
-    by the caller)."""
+    """A texel-space or photo capture fitted into the result set built at ``tmp`` (``out`` once swapped)."""
     import stage
 
     from ..fitting import read_truth, write_fit_folder
@@ -317,9 +307,7 @@ def _ingest_photos(args, capture_dir: Path):
 
 
 def _run_diligent(args, folder: Path, kwargs: dict, devices) -> int:
-    """``relight fit DILIGENT_DIR``: ``relight.fitting.fit_diligent`` (the model, default Blinn-Phong, and
-    the shading normal per pixel) into normals.exr/.png, albedo.exr/.png, report.json/.md (the angular error
-    against Normal_gt.mat when present, with the Lambertian least-squares baseline's) and settings.json."""
+    """``relight fit DILIGENT_DIR``: ``relight.fitting.fit_diligent`` and ``write_diligent_folder``."""
     from ..fitting import DILIGENT_MODEL, FitOptions, fit_diligent, write_diligent_folder
     from ..io import read_diligent
 
