@@ -6,10 +6,10 @@
 Scene: the bundled head (``stage.load_head()``), texel maps on a 256^2 grid,
 Lambert rho_d = (0.6, 0.42, 0.33) + GGX alpha 0.3 with Schlick F0 = 0.04, no
 subsurface; a 128 x 128 pinhole view from 600 mm (fov 24 deg); a lat-long map,
-direct light only. Mitsuba renders the scene ``relight.io.write_mitsuba_scene``
+direct light only. Mitsuba renders the scene ``relight.export.write_mitsuba_scene``
 exports with ``fresnel="schlick"`` (the fitted model's Fresnel exactly) and
 the environment resampled to relight's piecewise-constant pixels
-(``match_envmap``), ``path`` integrator with max_depth 2 (direct light only),
+(``relight.export.mitsuba_envmap``), ``path`` integrator with max_depth 2 (direct light only),
 ``hide_emitters`` (black background, as ``render_view(background=False)``),
 box pixel filter, two variants: ``scalar_rgb`` (renders the reference) and
 ``llvm_ad_rgb`` (Dr.Jit's vectorised LLVM backend, Mitsuba's fastest on a

@@ -10,7 +10,7 @@ total, and phases may interleave (a fit's rungs over its blocks). A consumer
 should time a phase's rate from its first ``done > 0``: the first unit pays
 the compile (the CLI's bars read "compiling" until then). Library functions
 take ``progress=None`` (silent); the CLI passes progress bars
-(``relight/cli/_common.py``'s ``Bar``).
+(``relight/cli/_progress.py``'s ``Bar``).
 """
 
 from __future__ import annotations

@@ -116,7 +116,7 @@ def _atomic_folder(folder: Path) -> Iterator[Path]:
     """Yield a temporary folder next to ``folder`` (mode 0o777 less the umask);
     on success swap it into place with the result sets' one folder swap
     (:func:`relight.results.swap_into`: an atomic exchange, or the old
-    capture moved aside, then deleted). Single files go through ``brdf.atomic_path``."""
+    capture moved aside, then deleted). Single files go through :func:`relight.results.atomic_path`."""
     parent = folder.parent if str(folder.parent) else Path(".")
     if not parent.is_dir():
         raise FileNotFoundError(f"{folder}: cannot write, folder {parent} does not exist")

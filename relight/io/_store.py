@@ -133,7 +133,7 @@ def _swap_in(tmp: Path, path: Path) -> None:
 
 def swap_folder(tmp: Path, path: Path) -> None:
     """Rename the finished folder ``tmp`` to ``path``, replacing what is there:
-    ``relight.io._resultset.swap_into``, the one folder swap (an atomic
+    :func:`relight.results.swap_into`, the one folder swap (an atomic
     exchange where the OS has one; else the old folder moved aside first and
     deleted after, so readers see the old set, then for a moment nothing,
     then the new one, never a mix). The caller decides what may be replaced."""

@@ -96,7 +96,7 @@ def decoder_start(pcapture: stage.PatternCapture, surface: stage.Surface, light_
 
 
 def fit_learned(pcapture: stage.PatternCapture, surface: stage.Surface, light_visibility,
-                model: PatternAutoencoder, **fit_options) -> Fit:
+                model: PatternAutoencoder, **fit_kw) -> Fit:
     """Fit Lambert + GGX per sample to a learned-pattern capture, starting from the decoder's estimate.
 
     ``relight.fitting.fit_patterns(pcapture, surface, light_visibility, model="ggx", start=decoder_start(...))``;
@@ -107,8 +107,9 @@ def fit_learned(pcapture: stage.PatternCapture, surface: stage.Surface, light_vi
         surface: its samples.
         light_visibility: bool [P, L] (or a ``stage.PackedMask``).
         model: an autoencoder trained for this capture's patterns.
-        **fit_options: passed on to ``fit_patterns``: ``normals``, ``solver``, ``chunk``, ``steps_per_round``,
-            ``rounds``, ``progress``.
+        **fit_kw: passed on to ``fit_patterns``: ``normals``, ``solver``, ``loss``, ``cauchy``,
+            ``alpha_floor``, and ``options`` (a :class:`relight.fitting.FitOptions`: ``chunk``, ``block``,
+            ``steps_per_round``, ``rounds``, ``devices``, ``progress``, ...).
 
     Returns:
         The ``Fit``.
@@ -117,4 +118,4 @@ def fit_learned(pcapture: stage.PatternCapture, surface: stage.Surface, light_vi
         Kang et al. 2018, "Efficient reflectance capture using an autoencoder".
     """
     start = decoder_start(pcapture, surface, light_visibility, model)
-    return fit_patterns(pcapture, surface, light_visibility, model="ggx", start=start, **fit_options)
+    return fit_patterns(pcapture, surface, light_visibility, model="ggx", start=start, **fit_kw)
