@@ -122,7 +122,7 @@ def _preface(r: dict) -> list[str]:
 
 def _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise: float, seed: int, progress):
     """The OLAT capture of the truth maps, then the sensor: (capture, the operator radius in mm)."""
-    import jax
+    import jax.numpy as jnp
 
     import skin_bssrdf
     import stage
@@ -139,7 +139,13 @@ def _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise: float, seed:
         lit = np.asarray(capture.radiance)[np.asarray(capture.mask)]
         median = float(np.median(lit[lit > 0]))
         exposure = 1.0 / (noise * noise * median)  # Poisson: sigma / mean = 1 / sqrt(exposure x radiance)
-        capture = stage.sense(capture, stage.Sensor(exposure=exposure, shot_noise=True), jax.random.PRNGKey(seed))
+        sensor = stage.Sensor(exposure=exposure, shot_noise=True)
+        # The one seeding rule (stage.observation_key): the noise of (view, light, texel) is relight simulate's.
+        views = [stage.sense_keyed(sensor, seed, capture.radiance[v], capture.mask[v], view=v, lights=0,
+                                   samples=np.asarray(surface.texel_index)) for v in range(len(cams))]
+        capture = stage.Capture(radiance=jnp.asarray(np.stack([r for r, _ in views])),
+                                mask=jnp.asarray(np.stack([m for _, m in views])), rig=rig, cameras=capture.cameras,
+                                sensor=sensor)
     return capture, radius
 
 
