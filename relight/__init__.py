@@ -3,9 +3,9 @@
 Optimistix (``relight.fitting``), image-based and model-based relighting
 (``relight.render``), preview images (``relight.image``), learned lighting
 patterns (``relight.patterns``), the results viewer (``relight.view``), result
-sets and atomic writes (``relight.results``), exporters (``relight.export``)
-and the ``relight`` CLI (``relight.cli``, loaded on demand). See
-docs/ARCHITECTURE.md.
+sets and atomic writes (``relight.results``), exporters (``relight.export``),
+simulated captures written whole (``relight.simulation``) and the ``relight``
+CLI (``relight.cli``, loaded on demand). See docs/ARCHITECTURE.md.
 
 The subpackages and the names re-exported here load on first use (PEP 562),
 so ``relight --help`` and ``relight --version`` start without JAX."""
@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from . import patterns as patterns
     from . import render as render
     from . import results as results
+    from . import simulation as simulation
     from . import view as view
     from .fitting import ALPHA_FIT_MIN as ALPHA_FIT_MIN
     from .fitting import LOSSES as LOSSES
@@ -42,7 +43,8 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from .materials import material_maps as material_maps
     from .materials import phong_exponent as phong_exponent
 
-_SUBPACKAGES = ("envmap", "export", "fitting", "image", "io", "materials", "patterns", "render", "results", "view")
+_SUBPACKAGES = ("envmap", "export", "fitting", "image", "io", "materials", "patterns", "render", "results",
+                "simulation", "view")
 # name -> the subpackage that defines it
 _NAMES = {
     "ALPHA_FIT_MIN": "fitting",

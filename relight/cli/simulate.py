@@ -4,9 +4,10 @@ texel``), a chunked capture store (``--out NAME.zarr``, streamed block by block)
 or a camera-space photo capture (``--space image``: docs/capture_layout.md).
 
 The command reads its flags and makes one library call:
-``relight.io.simulate_texel_capture`` (``stage.simulate_into`` with keyed sensor
-noise into a ``relight.io.CaptureFolderWriter`` or ``CaptureStoreWriter``, and the
-truth) or ``relight.io.simulate_photo_capture`` (``stage.simulate_images``);
+``relight.simulation.simulate_texel_capture`` (``stage.simulate_into`` with keyed
+sensor noise into a ``relight.io.CaptureFolderWriter`` or ``CaptureStoreWriter``,
+and the truth) or ``relight.simulation.simulate_photo_capture``
+(``stage.simulate_images``);
 docs/cli.md shows the same from Python."""
 
 from __future__ import annotations
@@ -50,21 +51,15 @@ if TYPE_CHECKING:  # what _LAZY imports at run time, spelled for readers and lin
     import skin_bssrdf
     import stage
 
-    from ..io import (
-        MeanFreePath,
-        open_capture_store,
-        read_mean_free_path,
-        simulate_photo_capture,
-        simulate_texel_capture,
-        spec_mesh,
-    )
+    from ..io import open_capture_store, read_mean_free_path, spec_mesh
+    from ..simulation import MeanFreePath, simulate_photo_capture, simulate_texel_capture
 
 # The library names this module uses, imported on first use: name -> (module, attribute). A name a test or
 # script has replaced (``relight.cli.simulate.spec_mesh = ...``) is kept.
 _LAZY = {
     "skin_bssrdf": ("skin_bssrdf", None), "stage": ("stage", None),
-    **{n: ("relight.io", n) for n in ("MeanFreePath", "open_capture_store", "read_mean_free_path",
-                                      "simulate_photo_capture", "simulate_texel_capture", "spec_mesh")},
+    **{n: ("relight.io", n) for n in ("open_capture_store", "read_mean_free_path", "spec_mesh")},
+    **{n: ("relight.simulation", n) for n in ("MeanFreePath", "simulate_photo_capture", "simulate_texel_capture")},
 }
 
 # relight.cli._common.SUBSURFACE_PRESETS (the --subsurface presets, read from skin_bssrdf), spelled here for the
@@ -139,8 +134,8 @@ DEFAULT_BLOCK = 1 << 14
 
 
 def _mfp_source(args):
-    """``relight.io.MeanFreePath`` of --subsurface / --mfp-scale / --eta (a preset's per-channel mean free path
-    [3] or a map [H, W, 3]), or None without --subsurface."""
+    """``relight.simulation.MeanFreePath`` of --subsurface / --mfp-scale / --eta (a preset's per-channel mean free
+    path [3] or a map [H, W, 3]), or None without --subsurface."""
     if args.subsurface is None:
         if args.mfp_scale != 1.0 or args.eta is not None:
             raise CLIError(f"{'--mfp-scale' if args.mfp_scale != 1.0 else '--eta'}: needs --subsurface PRESET|MAP")

@@ -56,16 +56,11 @@ from ._png import write_png as write_png
 from ._previews import write_map_previews as write_map_previews
 from ._previews import write_preview as write_preview
 from ._regions import read_regions as read_regions
-from ._simulate_capture import MeanFreePath as MeanFreePath
-from ._simulate_capture import SimulatedCapture as SimulatedCapture
-from ._simulate_capture import peak_rss_mib as peak_rss_mib
-from ._simulate_capture import release_freed_memory as release_freed_memory
-from ._simulate_capture import simulate_photo_capture as simulate_photo_capture
-from ._simulate_capture import simulate_texel_capture as simulate_texel_capture
 from ._source import ArraySource as ArraySource
 from ._source import CaptureSource as CaptureSource
 from ._source import capture_source as capture_source
 from ._source import valid_counts as valid_counts
+from ._store import LIGHT_CHUNK as LIGHT_CHUNK
 from ._store import CaptureStoreError as CaptureStoreError
 from ._store import CaptureStoreWriter as CaptureStoreWriter
 from ._store import StoreChangedError as StoreChangedError
@@ -107,13 +102,8 @@ __all__ = [
     "store_blocks",
     "mean_free_path_at",
     "read_mean_free_path",
-    "MeanFreePath",
-    "SimulatedCapture",
-    "peak_rss_mib",
-    "release_freed_memory",
-    "simulate_photo_capture",
-    "simulate_texel_capture",
     "CaptureStore",
+    "LIGHT_CHUNK",
     "CaptureStoreError",
     "CaptureStoreWriter",
     "StoreChangedError",

@@ -45,9 +45,9 @@ def test_folder_and_store_writers_hold_the_stream(tmp_path):
 
 
 def test_simulate_texel_capture_names_its_arguments_in_errors(tmp_path):
-    """relight.io.simulate_texel_capture's ValueErrors start with the argument they are about (the CLI turns
+    """relight.simulation.simulate_texel_capture's ValueErrors start with the argument they are about (the CLI turns
     them into errors naming its flags); nothing is left at ``out``."""
-    from relight.io import MeanFreePath, simulate_texel_capture
+    from relight.simulation import MeanFreePath, simulate_texel_capture
 
     mesh = uv_sphere(radius=50.0, n_lat=12, n_lon=24)
     rig = stage.geodesic_dome(0)

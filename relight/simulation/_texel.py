@@ -1,9 +1,8 @@
-"""Simulated captures written whole: a texel-space capture folder or store with its ground truth, or a
-camera-space photo capture, of the demo's skin-like material on a mesh (what ``relight simulate`` writes)."""
+"""A simulated texel-space capture of the demo's skin-like material on a mesh, written whole: a capture folder
+or a capture store with its ground truth (what ``relight simulate`` writes in texel space)."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 from collections.abc import Mapping
@@ -16,106 +15,29 @@ import skin_bssrdf
 import stage
 
 from ..image import dilate, texture_view
+from ..io import (
+    LIGHT_CHUNK,
+    CaptureFolderWriter,
+    CaptureStoreWriter,
+    mean_free_path_at,
+    store_blocks,
+    write_exr,
+    write_map_previews,
+    write_maps,
+    write_preview,
+)
 from ..materials import GGX, SUBSURFACE, demo_material, material_maps
 from ..results import open_result_set
-from ._capture_writer import CaptureFolderWriter, store_blocks
-from ._exr import write_exr
-from ._mean_free_path import mean_free_path_at
-from ._photos import write_photo_capture
-from ._previews import write_map_previews, write_preview
-from ._store import LIGHT_CHUNK, CaptureStoreWriter
-from ._texture_set import write_maps
+from ._capture import MATERIAL, SSS_MATERIAL, UNITS, MeanFreePath, SimulatedCapture, noise_record
+from ._memory import mark
 
-__all__ = ["MeanFreePath", "SimulatedCapture", "peak_rss_mib", "release_freed_memory", "simulate_photo_capture",
-           "simulate_texel_capture"]
+__all__ = ["simulate_texel_capture"]
 
 # Lights per stage.simulate_into chunk: a store two store chunks' worth (LIGHT_CHUNK lights each; with
 # subsurface one), so every write completes its store chunks; a folder stage.simulate's default.
 STORE_LIGHT_CHUNK, SUBSURFACE_STORE_LIGHT_CHUNK, FOLDER_LIGHT_CHUNK = 2 * LIGHT_CHUNK, LIGHT_CHUNK, 64
 # Texels per call of the camera visibility pass (stage.camera_visibility's chunk).
 CAMERA_CHUNK = 1 << 16
-_MATERIAL = "relight demo skin (Lambert + GGX, F0 0.028, alpha 0.2-0.5)"
-_SSS_MATERIAL = ("relight demo skin (GGX, F0 0.028, alpha 0.2-0.5, + subsurface scattering: Burley profile of "
-                 "albedo rho_d and the mean free path of metadata.subsurface)")
-_UNITS = {"lengths": "mm", "radiance": "relative to the rig's irradiance"}
-
-
-@dataclasses.dataclass(frozen=True)
-class MeanFreePath:
-    """The subsurface scattering of a simulated capture: the diffuse mean free path and the Fresnel eta.
-
-    Fields:
-        mfp: float [3] (mm per channel, everywhere) or [H, W, 3] (a map on the texture atlas; 0 = no
-            subsurface at that texel), as ``relight.io.read_mean_free_path`` gives it.
-        eta: the relative index of refraction of the Fresnel transmittances.
-        source: what the mean free path is (recorded: "preset skin1", a file name).
-        scale: the factor already applied to ``mfp`` (recorded).
-    """
-
-    mfp: np.ndarray
-    eta: float = skin_bssrdf.SKIN_ETA
-    source: str = ""
-    scale: float = 1.0
-
-
-@dataclasses.dataclass(frozen=True)
-class SimulatedCapture:
-    """What :func:`simulate_texel_capture` / :func:`simulate_photo_capture` wrote.
-
-    Fields:
-        path: the capture folder or store.
-        resolved: the settings to record (views, lights, samples seen, timings, peak memory, ...).
-        summary: one line saying what was written.
-        images, masks: the photo capture's images [L, H, W, C] and masks [H, W] per camera (photo
-            captures only; None otherwise).
-    """
-
-    path: Path
-    resolved: dict
-    summary: str
-    images: list | None = None
-    masks: list | None = None
-
-
-def peak_rss_mib() -> float | None:
-    """The process's peak resident set so far.
-
-    Returns:
-        MiB (Linux's ``ru_maxrss`` is in KiB), or None where the platform does not say.
-    """
-    try:
-        import resource
-
-        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
-    except (ImportError, OSError):  # pragma: no cover - not Linux / macOS
-        return None
-
-
-def release_freed_memory() -> None:
-    """Hand freed heap back to the system (glibc's ``malloc_trim``; nothing elsewhere).
-
-    A texel grid's temporaries (``stage.texel_samples``, the camera visibility of the whole grid: hundreds
-    of bytes a texel) are freed but kept by glibc; trimming stops them staying resident under the phases
-    that follow.
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # pragma: no cover - not glibc
-        pass
-
-
-def _mark() -> float | None:
-    peak = peak_rss_mib()
-    release_freed_memory()
-    return peak
-
-
-def _noise(sensor, seed: int, sample: str) -> dict | None:
-    return None if sensor is None else {
-        "model": "poisson-gaussian", "exposure": float(sensor.exposure), "read_noise": float(sensor.read_noise),
-        "seed": int(seed), "keys": f"fold_in(fold_in(fold_in(PRNGKey(seed), view), light), {sample})"}
 
 
 def _truth(surface, subsurface: MeanFreePath | None, progress):
@@ -176,8 +98,8 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
     (``stage.camera_visibility``, ``CAMERA_CHUNK`` texels at a time) pick the seen texels; the demo material
     (``relight.materials.demo_material``) over them, with ``subsurface`` its local Lambert term replaced by
     subsurface scattering where the mean free path is > 0 (``stage.subsurface_from_maps``); then
-    ``stage.simulate_into`` a capture folder (:class:`CaptureFolderWriter`, held in memory) or a capture store
-    (:class:`CaptureStoreWriter`, streamed block by block; with subsurface one block), the full grid
+    ``stage.simulate_into`` a capture folder (``relight.io.CaptureFolderWriter``, held in memory) or a capture store
+    (``relight.io.CaptureStoreWriter``, streamed block by block; with subsurface one block), the full grid
     [V, L, H*W, C] with unseen texels 0 and invalid; truth/ (the ground-truth map set and its previews) and
     preview_all_lights.exr/.png inside.
 
@@ -190,7 +112,7 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
         surface_info: how to rebuild the surface (``relight.io.mesh_spec``); the resolution is added.
         rig_info: the rig's description, recorded in the metadata.
         store: a capture store (else a capture folder).
-        block: grid texels per block of a store, rounded down to whole store chunks (:func:`store_blocks`).
+        block: grid texels per block of a store, rounded down to whole store chunks (``relight.io.store_blocks``).
         half: radiance as half floats.
         sensor: optional ``stage.Sensor``; its noise follows ``stage.observation_key``.
         seed: the noise seed.
@@ -213,7 +135,7 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
     cameras = tuple(cameras)
     t0 = time.perf_counter()
     grid = stage.texel_samples(mesh, resolution)
-    times, memory = {"geometry_s": time.perf_counter() - t0}, {"geometry": _mark()}
+    times, memory = {"geometry_s": time.perf_counter() - t0}, {"geometry": mark()}
     t0 = time.perf_counter()
     cam_vis = stage.camera_visibility(mesh, grid, cameras, chunk=CAMERA_CHUNK)
     seen = np.nonzero(np.any(cam_vis, axis=0))[0]
@@ -227,13 +149,13 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
         times["subsurface_operator_s"] = time.perf_counter() - t0
     (H, W), V, L, C = grid.resolution, len(cameras), rig.num_lights, 3
     del grid  # only the seen texels from here (the grid's surface is ~70 B a texel)
-    memory["camera_visibility"] = _mark()
+    memory["camera_visibility"] = mark()
     dtype = np.float16 if half else np.float32
     info = {**surface_info, "resolution": [H, W]}
     meta = {"space": "texel", "surface": info, "rig": rig_info,
-            "material": f"{_MATERIAL if sss is None else _SSS_MATERIAL}, ground truth in truth/",
-            "subsurface": record, "noise": _noise(sensor, seed, "texel"), "units": _UNITS,
-            "writer": "relight.io.simulate_texel_capture", **(metadata or {})}
+            "material": f"{MATERIAL if sss is None else SSS_MATERIAL}, ground truth in truth/",
+            "subsurface": record, "noise": noise_record(sensor, seed, "texel"), "units": UNITS,
+            "writer": "relight.simulation.simulate_texel_capture", **(metadata or {})}
     if store:
         block, pc = store_blocks(H * W, block, C, dtype)
         writer = CaptureStoreWriter(out, (V, L, H * W, C), dtype, rig, cameras, meta, (1, LIGHT_CHUNK, pc, C),
@@ -247,10 +169,10 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
         done = stage.simulate_into(writer, mesh, surface, rig, cameras, truth, cam_vis, subsurface=sss,
                                    sensor=sensor, seed=seed, block=block, light_chunk=lc, progress=progress)
     times["visibility_s"], times["simulate_s"] = done.visibility_s, time.perf_counter() - t0 - done.visibility_s
-    memory["simulate"] = _mark()
+    memory["simulate"] = mark()
     t0 = time.perf_counter()
     _write_truth(out, mesh, cameras[0], surface, done.all_lights, maps, surface_info, record)
-    times["write_s"], memory["write"] = time.perf_counter() - t0, _mark()
+    times["write_s"], memory["write"] = time.perf_counter() - t0, mark()
     form = {"form": "store", "block_texels": done.block, "store_chunks": [1, LIGHT_CHUNK, int(pc), C],
             "blocks": done.blocks} if store else {}
     resolved = {"mesh": info, "rig": rig_info, "lights": L, "views": V, "samples_seen": int(len(seen)),
@@ -262,53 +184,3 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
     summary = (f"({'capture store: ' if store else ''}{V} view(s) x {L} lights, {len(seen)} of {H}x{W} texels "
                f"seen{tail}{blocks})")
     return SimulatedCapture(out, resolved, summary)
-
-
-def simulate_photo_capture(out: str | os.PathLike, mesh: stage.Mesh, rig: stage.Rig, cameras, *,
-                           mesh_info: Mapping, rig_info=None, half: bool = False, sensor: stage.Sensor | None = None,
-                           seed: int = 0, metadata: Mapping | None = None,
-                           progress: stage.Progress | None = None) -> SimulatedCapture:
-    """Simulate the photographs of an OLAT capture of the demo's material and write them as a photo capture.
-
-    ``stage.simulate_images`` (per camera: one sample per pixel, visibility, the OLAT radiance, the sensor
-    keyed by ``stage.observation_key`` with the pixel as the sample) written by :func:`write_photo_capture`
-    with each camera's mask (the pixels that see the mesh), and preview_all_lights.exr/.png (camera 0 with
-    every light on).
-
-    Args:
-        out: the photo capture folder to write.
-        mesh: the mesh.
-        rig: the lights.
-        cameras: the cameras.
-        mesh_info: the mesh's description, recorded (``relight.io.mesh_spec``).
-        rig_info: the rig's description, recorded.
-        half: radiance as half floats.
-        sensor: optional ``stage.Sensor``.
-        seed: the noise seed.
-        metadata: entries that replace the capture metadata's own.
-        progress: ``stage.Progress``.
-
-    Returns:
-        A :class:`SimulatedCapture` with the images and masks.
-
-    Raises:
-        ValueError: "camera N: ..." when a camera sees no part of the mesh.
-    """
-    out = Path(out)
-    cameras = tuple(cameras)
-    t0 = time.perf_counter()
-    images, masks = stage.simulate_images(mesh, rig, cameras, lambda s: brdf.lambert_ggx(*demo_material(s)),
-                                          sensor=sensor, seed=seed, progress=progress)
-    times = {"simulate_s": time.perf_counter() - t0}
-    meta = {"space": "image", "mesh": dict(mesh_info), "rig": rig_info, "noise": _noise(sensor, seed, "pixel"),
-            "material": _MATERIAL, "units": _UNITS, "writer": "relight.io.simulate_photo_capture", **(metadata or {})}
-    t0 = time.perf_counter()
-    write_photo_capture(out, images, rig, cameras, half=half, masks=masks, metadata=meta)
-    all_on = images[0].sum(axis=0)
-    write_exr(out / "preview_all_lights.exr", all_on)
-    write_preview(out / "preview_all_lights.png", all_on)
-    times["write_s"] = time.perf_counter() - t0
-    resolved = {"mesh": dict(mesh_info), "rig": rig_info, "lights": rig.num_lights, "views": len(cameras),
-                "pixels_seen": [int(m.sum()) for m in masks], "timings_s": {k: round(v, 3) for k, v in times.items()}}
-    return SimulatedCapture(out, resolved, f"({len(cameras)} camera(s) x {rig.num_lights} lights, photo capture)",
-                            images, masks)
