@@ -2,7 +2,8 @@
 (``relight.envmap``), material maps (``relight.materials``), fitting with
 Optimistix (``relight.fitting``), image-based and model-based relighting
 (``relight.render``), preview images (``relight.image``), learned lighting
-patterns (``relight.patterns``), the results viewer (``relight.view``), result
+patterns (``relight.patterns``), the results viewer (``relight.view``), the demo
+(``relight.demo``), result
 sets and atomic writes (``relight.results``), exporters (``relight.export``),
 simulated captures written whole (``relight.simulation``) and the ``relight``
 CLI (``relight.cli``, loaded on demand). See docs/ARCHITECTURE.md.
@@ -14,6 +15,7 @@ import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test's import graph
+    from . import demo as demo
     from . import envmap as envmap
     from . import export as export
     from . import fitting as fitting
@@ -43,7 +45,7 @@ if TYPE_CHECKING:  # the eager form, for type checkers and the architecture test
     from .materials import material_maps as material_maps
     from .materials import phong_exponent as phong_exponent
 
-_SUBPACKAGES = ("envmap", "export", "fitting", "image", "io", "materials", "patterns", "render", "results",
+_SUBPACKAGES = ("demo", "envmap", "export", "fitting", "image", "io", "materials", "patterns", "render", "results",
                 "simulation", "view")
 # name -> the subpackage that defines it
 _NAMES = {

@@ -41,11 +41,12 @@ THIRD_PARTY = {
 }
 
 # (d) relight's layering (docs/ARCHITECTURE.md): a subpackage imports only subpackages of a lower layer, so
-# image, materials and results (result sets, atomic writes) import none, io may use them, envmap and export
-# (exporters) io, fitting and render everything below them but not each other, patterns (learned lighting)
-# and view (the results viewer) everything below them but not each other, and cli all.
-LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "export": 2, "fitting": 3, "render": 3,
-         "patterns": 4, "view": 4, "cli": 5}
+# image, materials and results (result sets, atomic writes) import none, io may use them, envmap, export
+# (exporters) and simulation (simulated captures written whole) io, fitting and render everything below them
+# but not each other, patterns (learned lighting) and view (the results viewer) everything below them but not
+# each other, demo (relight demo as one call) everything below it, and cli all.
+LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "export": 2, "simulation": 2, "fitting": 3,
+         "render": 3, "patterns": 4, "view": 4, "demo": 5, "cli": 6}
 
 
 @dataclass(frozen=True)
@@ -291,3 +292,112 @@ def test_the_cycle_finder_finds_cycles():
     e = Edge("a", "b", "x.py:1")
     assert _cycles({"a", "b", "c"}, [("a", "b", e), ("b", "c", e), ("c", "a", e)]) == [["a", "b", "c"]]
     assert _cycles({"a", "b", "c"}, [("a", "b", e), ("b", "c", e), ("a", "c", e)]) == []
+
+
+# (e) Rooms with one job and thin commands (issue 26; docs/ARCHITECTURE.md "Rules of shape").
+# optimistix's largest module is 645 lines; ours stay under MAX_MODULE_LINES, and a command, which only parses,
+# calls one library function and prints, under MAX_COMMAND_LINES.
+MAX_MODULE_LINES = 600
+MAX_COMMAND_LINES = 350
+# The spellings of the render methods: strings belong to the CLI; relight.render dispatches on Modules.
+RENDER_METHOD_NAMES = {"rig", "dense", "fast", "reference", "lights"}
+
+
+def _lines(path: Path) -> int:
+    return len(path.read_text(encoding="utf-8").splitlines())
+
+
+def test_no_module_is_a_room_with_several_jobs():
+    long = [f"{p.relative_to(ROOT)}: {_lines(p)} lines" for p in MODULES.values() if _lines(p) > MAX_MODULE_LINES]
+    assert not long, f"modules over {MAX_MODULE_LINES} lines (split them by job):\n" + "\n".join(long)
+
+
+def test_commands_are_thin():
+    long = [f"{MODULES[m].relative_to(ROOT)}: {_lines(MODULES[m])} lines" for m in MODULES
+            if _relight_unit(m) == "relight.cli" and _lines(MODULES[m]) > MAX_COMMAND_LINES]
+    why = "move the logic into the library"
+    assert not long, f"CLI modules over {MAX_COMMAND_LINES} lines ({why}):\n" + "\n".join(long)
+
+
+def _private_imports(module: str, source: str | None = None) -> list[str]:
+    """`path:line: name` for each private name (a `_x` module or a `_x` attribute) that ``module`` imports from
+    a package other than its own subpackage (``source``: the module's text, default its file's)."""
+    path = MODULES[module]
+    rel = path.relative_to(ROOT).as_posix()
+    unit = _relight_unit(module) if _top(module) == "relight" else _top(module)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8") if source is None else source)):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = _package_of(module).split(".")
+                base = base[: len(base) - (node.level - 1)]
+                stem = ".".join(base + ([node.module] if node.module else []))
+            else:
+                stem = node.module or ""
+            names = [f"{stem}.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        for name in names:
+            if _top(name) not in PACKAGES:
+                continue
+            home = _relight_unit(name) if _top(name) == "relight" else _top(name)
+            if home == unit:
+                continue
+            if any(part.startswith("_") and part != "__init__" for part in name.split(".")):
+                out.append(f"{rel}:{node.lineno}: {name}")
+    return out
+
+
+def test_commands_import_no_private_name_of_another_package():
+    bad = [line for m in MODULES if _relight_unit(m) == "relight.cli" for line in _private_imports(m)]
+    assert not bad, "the CLI uses only public library names; found:\n" + "\n".join(bad)
+
+
+def test_the_private_import_finder_finds_them():
+    source = ("from ..io._resultset import x\nfrom ..io import y\nimport stage._rig\nfrom . import _flags\n"
+              "from ..render import _private_helper\nfrom stage import Rig\n")
+    found = [line.rsplit(": ", 1)[1] for line in _private_imports("relight.cli", source)]
+    assert found == ["relight.io._resultset.x", "stage._rig", "relight.render._private_helper"]
+
+
+def _string_dispatch(path: Path) -> list[str]:
+    rel = path.relative_to(ROOT).as_posix()
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            consts = {s.value for s in sides if isinstance(s, ast.Constant) and isinstance(s.value, str)}
+            for s in sides:
+                if isinstance(s, (ast.Tuple, ast.List, ast.Set)):
+                    consts |= {e.value for e in s.elts if isinstance(e, ast.Constant) and isinstance(e.value, str)}
+            if consts & RENDER_METHOD_NAMES:
+                out.append(f"{rel}:{node.lineno}: compares with {sorted(consts & RENDER_METHOD_NAMES)}")
+        elif isinstance(node, ast.Match):
+            out += [f"{rel}:{c.pattern.lineno}: match on a method name" for c in node.cases
+                    if isinstance(c.pattern, ast.MatchValue) and getattr(c.pattern.value, "value", None)
+                    in RENDER_METHOD_NAMES]
+    return out
+
+
+def test_no_string_dispatch_in_render():
+    bad = [line for m, p in MODULES.items() if _relight_unit(m) == "relight.render" for line in _string_dispatch(p)]
+    assert not bad, "relight.render dispatches on method Modules, not on their names:\n" + "\n".join(bad)
+
+
+def test_the_dispatch_finder_finds_dispatch(tmp_path):
+    p = tmp_path / "m.py"
+    p.write_text("if method == 'dense':\n    pass\nif m in ('rig', 'x'):\n    pass\nok = name == 'other'\n")
+    found = [line.split(": ", 1)[0].rsplit(":", 1)[1] for line in _string_dispatch_at(p)]
+    assert found == ["1", "3"]
+
+
+def _string_dispatch_at(path: Path) -> list[str]:
+    """:func:`_string_dispatch` for a file outside the tree (the finder's own test)."""
+    global ROOT
+    saved, ROOT = ROOT, path.parent
+    try:
+        return _string_dispatch(path)
+    finally:
+        ROOT = saved

@@ -1,5 +1,5 @@
 """``relight demo``: the main job end to end on built-in data, on the real
-problem (``relight.view.run_demo``): the bundled head scan with its own skin
+problem (``relight.demo.run_demo``): the bundled head scan with its own skin
 textures and spatially varying subsurface scattering, photographed under the
 bundled Light Stage X by several cameras with sensor noise; the full model
 ladder fitted; the fitted maps and the truth maps relit by the same renderer
@@ -77,9 +77,9 @@ def run(args) -> int:
 
 def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_size: int = 320, cameras: int = 3,
              noise: float = 0.01, seed: int = 0, passes: int = 2, quiet: int | bool = 0, index: bool = True) -> dict:
-    """``relight.view.run_demo`` into the result set ``out`` (refused before the work unless it may be
+    """``relight.demo.run_demo`` into the result set ``out`` (refused before the work unless it may be
     replaced), with progress bars and index.html; returns the report."""
-    from ..view import run_demo as demo
+    from ..demo import run_demo as demo
 
     out = check_out(out, "demo")  # output_set checks again, locked, before writing
     with bar(None, "demo", quiet, leave=True) as b:

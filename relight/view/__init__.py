@@ -10,14 +10,10 @@
   (a map set's own capture is relit image-based first; the model-based sweep is the fallback, or an extra row);
   :func:`render_sweeps`: the slider of a ``relight.render.render_folder`` output.
 * :func:`markdown_html`: the Markdown subset of the project's reports as HTML.
-* :func:`run_demo`: ``relight demo`` as one call (the bundled head simulated, fitted, relit and reported;
-  :class:`Demo` writes the folder and gives its slider).
 
 ``relight view RESULT_DIR`` (docs/cli.md) writes the page; every command writes one into its output folder.
 """
 
-from ._demo import Demo as Demo
-from ._demo import run_demo as run_demo
 from ._markdown import markdown_html as markdown_html
 from ._page import INDEX as INDEX
 from ._page import data_uri as data_uri
@@ -37,6 +33,6 @@ from ._sweep import render_sweeps as render_sweeps
 from ._sweep import sweep_angles as sweep_angles
 from ._sweep import sweep_camera as sweep_camera
 
-__all__ = ["DEFAULT_FRAMES", "DEFAULT_SIZE", "INDEX", "Demo", "Sweep", "capture_sweep", "data_uri", "folder_sweeps",
+__all__ = ["DEFAULT_FRAMES", "DEFAULT_SIZE", "INDEX", "Sweep", "capture_sweep", "data_uri", "folder_sweeps",
            "frames_sweep", "map_set_sweeps", "maps_sweep", "markdown_html", "page_html",
-           "photo_sweep", "preview_envmap", "render_sweeps", "run_demo", "sweep_angles", "sweep_camera", "write_index"]
+           "photo_sweep", "preview_envmap", "render_sweeps", "sweep_angles", "sweep_camera", "write_index"]

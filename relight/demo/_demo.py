@@ -94,7 +94,7 @@ class Demo:
         Returns:
             ``(rows, note)``: one :class:`relight.view.Sweep` and None.
         """
-        from ._sweep import capture_sweep
+        from ..view import capture_sweep
 
         return [capture_sweep(self.capture, self.surface, self.mesh, self.camera, self.env, frames, size,
                               "the simulated capture relit image-based (`relight view` adds truth and fit, "
