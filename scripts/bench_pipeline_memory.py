@@ -4,20 +4,21 @@ head (``stage.load_head``) under the Light Stage X rig (346 lights, the
 defaults of ``relight simulate``), at several texel grids.
 
 Every measurement is its own fresh process, which prints its peak resident
-set size (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: a per-process
+set size (``relight.simulation.peak_rss_mib``: ``ru_maxrss``, a per-process
 maximum). Each process also splits its peak in two: the peak while the texel
 surface is built (``stage.texel_samples`` over the whole grid, which every
-command needs first) and, after handing freed heap back (glibc
-``malloc_trim``) and resetting the kernel's high-water mark
-(``/proc/self/clear_refs`` = 5, Linux), the peak of the rest: the streamed
-simulation / the fit. The total is the larger of the two.
+command needs first) and, after handing freed heap back
+(``relight.simulation.release_freed_memory``: glibc ``malloc_trim``) and
+resetting the kernel's high-water mark (``/proc/self/clear_refs`` = 5,
+Linux), the peak of the rest: the streamed simulation / the fit. The total is
+the larger of the two. The benchmark wraps ``stage.texel_samples`` (which
+both build the grid through) to take the first peak and reset it after.
 
 * simulate: ``relight.cli.main(["simulate", "--resolution", N, "--out",
-  N.zarr, "--block", B])`` (the CLI itself; the benchmark only wraps
-  ``texel_surface`` to reset the high-water mark after it).
+  N.zarr, "--block", B])`` (the CLI itself, ``relight.simulation.simulate_texel_capture``).
 * fit: the store opened as ``relight fit`` opens it,
   ``relight.io.open_texel_capture``: the surface rebuilt from its metadata
-  (``texel_surface``, wrapped to reset the high-water mark after it), the
+  (``relight.io.texel_surface``, through ``stage.texel_samples``), the
   texels with a valid observation found from the mask alone (chunk by chunk),
   and the capture a ``relight.io.SampleSubset`` of the store over them (each
   block reads only the store chunks it touches); then
@@ -40,7 +41,6 @@ import datetime
 import json
 import os
 import platform
-import resource
 import sys
 import tempfile
 import time
@@ -52,20 +52,19 @@ FIGURES = ROOT / "docs" / "figures"
 
 
 def _peak_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+    from relight.simulation import peak_rss_mib
+
+    return peak_rss_mib()
 
 
 def _reset_peak() -> bool:
     """Reset the process's peak RSS to its current RSS (Linux >= 4.0), after
-    handing freed heap back (glibc ``malloc_trim``, as ``relight simulate`` does
-    after building the grid), so the next phase's peak starts from what is live;
-    False where that is not possible."""
-    try:
-        import ctypes
+    handing freed heap back (``relight.simulation.release_freed_memory``, as
+    ``relight simulate`` does after building the grid), so the next phase's peak
+    starts from what is live; False where that is not possible."""
+    from relight.simulation import release_freed_memory
 
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+    release_freed_memory()
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
@@ -74,29 +73,41 @@ def _reset_peak() -> bool:
         return False
 
 
+def _mark_grid(marks: dict, after=None) -> None:
+    """Wrap ``stage.texel_samples`` (the texel grid, built first by simulate and by
+    ``open_texel_capture``) so that its first call records its time and the peak so far
+    into ``marks``, resets the peak, then calls ``after()``."""
+    import stage
+
+    build = stage.texel_samples
+
+    def texel_samples(*a, **k):
+        t = time.perf_counter()
+        out = build(*a, **k)
+        if "peak_surface_mib" not in marks:
+            marks["grid_s"] = time.perf_counter() - t
+            marks["peak_surface_mib"] = _peak_mib()
+            marks["reset"] = _reset_peak()
+            if after is not None:
+                after()
+        return out
+
+    stage.texel_samples = texel_samples
+
+
 def child_simulate(args) -> None:
     """One simulate: the CLI into args.store; prints JSON."""
-    import relight.cli.simulate as sim
     from relight.cli import main
 
     marks = {}
-    build = sim.texel_surface
-
-    def texel_surface(*a, **k):
-        t = time.perf_counter()
-        out = build(*a, **k)
-        marks["surface_s"] = time.perf_counter() - t
-        marks["peak_surface_mib"] = _peak_mib()
-        marks["reset"] = _reset_peak()
-        return out
-
-    sim.texel_surface = texel_surface
+    _mark_grid(marks)
     t = time.perf_counter()
     rc = main(["simulate", "--resolution", str(args.res), "--out", args.store, "--block", str(args.block), "--quiet"])
     wall = time.perf_counter() - t
     assert rc == 0, rc
     settings = json.loads((Path(args.store) / "settings.json").read_text())["resolved"]
     rest = _peak_mib()
+    marks["surface_s"] = marks.pop("grid_s")
     print(json.dumps({"wall_s": wall, "peak_mib": max(rest, marks["peak_surface_mib"]), "peak_rest_mib": rest,
                       **marks, "seen": settings["samples_seen"], "timings_s": settings["timings_s"],
                       "phase_peaks_mib": settings["peak_rss_mib"], "blocks": settings["blocks"],
@@ -109,23 +120,18 @@ def child_fit(args) -> None:
     import numpy as np
 
     import relight
-    import relight.io._texel as texel
     from relight.io import SampleSubset, open_texel_capture
 
     marks = {}
-    build = texel.texel_surface
 
-    def texel_surface(*a, **k):
-        out = build(*a, **k)
+    def surface_built():  # the mesh read and its grid built: the rest of open_texel_capture is the seen pass
         marks["surface_s"] = time.perf_counter() - t
-        marks["peak_surface_mib"] = _peak_mib()
-        marks["reset"] = _reset_peak()
         marks["t_seen"] = time.perf_counter()
-        return out
 
-    texel.texel_surface = texel_surface
+    _mark_grid(marks, surface_built)
     t = time.perf_counter()
     capture, surface, _, _ = open_texel_capture(args.store)
+    marks.pop("grid_s")
     seen_s = time.perf_counter() - marks.pop("t_seen")
     seen = capture.n_samples
     if args.fit_samples and args.fit_samples < seen:
