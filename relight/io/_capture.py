@@ -42,7 +42,15 @@ import stage
 
 from ..results import MANIFEST, open_result_set, swap_into
 from ..results import folder_mode as _folder_mode
-from ._errors import ImageFormatError, check_image_size, check_radiance, format_version, path_inside, path_template
+from ._errors import (
+    ImageFormatError,
+    check_image_size,
+    check_radiance,
+    format_version,
+    path_inside,
+    path_template,
+    set_refusal_as,
+)
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import read_json, write_json
 
@@ -273,8 +281,9 @@ class CaptureReader:
             raise FileNotFoundError(f"{self.folder}: no such capture folder")
         # A capture written as a result set (relight simulate): its JSON files must be the set's own.
         if (self.folder / MANIFEST).is_file():
-            rs = open_result_set(self.folder)
-            rs.check([n for n in ("capture.json", "rig.json", "cameras.json") if n in rs.files])
+            with set_refusal_as(self.folder):
+                rs = open_result_set(self.folder)
+                rs.check([n for n in ("capture.json", "rig.json", "cameras.json") if n in rs.files])
         where = self.folder / "capture.json"
         info = _check_info(_load_json(where), where)
         self.n_views, self.n_lights = info["n_views"], info["n_lights"]

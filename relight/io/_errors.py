@@ -6,18 +6,20 @@ Every message names the file, the field and what was expected (DESIGN.md,
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import string
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from ..results import ResultSetError
 from ..results import format_version as _format_version
 
 __all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_image_size",
-           "check_radiance", "path_inside", "path_template"]
+           "check_radiance", "path_inside", "path_template", "set_refusal_as"]
 
 # The largest image a reader decodes: 2^28 pixels (16384 x 16384, 3 GiB as float32 RGB). Readers check a
 # file's declared size against it before allocating anything, so a corrupt or hostile header (an HDR saying
@@ -39,6 +41,30 @@ MAX_PATH_CHARS = 1024
 class ImageFormatError(ValueError):
     """A file that is not a valid image of the expected format (corrupt,
     truncated, wrong magic, missing channel, inconsistent sizes)."""
+
+
+@contextlib.contextmanager
+def set_refusal_as(where: str | os.PathLike, error: type[ImageFormatError] = ImageFormatError) -> Iterator[None]:
+    """Give a reader's result-set refusal as the reader's own file-format error.
+
+    A folder written as a result set is read only if its files are the ones its manifest lists
+    (``relight.results.ResultSet.check``). A :class:`relight.results.ResultSetError` raised inside the block
+    (no manifest, a file missing, not listed or differing from the manifest: a mix of two writes) is raised
+    again as ``error`` (chained, ``from`` the original), so that every refusal of a reader is caught as one
+    file-format error.
+
+    Args:
+        where: the folder read; the message names it (the original message, if it does already).
+        error: the reader's error class (:class:`ImageFormatError` or a subclass).
+
+    Returns:
+        A context manager.
+    """
+    try:
+        yield
+    except ResultSetError as exc:
+        msg = str(exc)
+        raise error(msg if str(where) in msg else f"{where}: {msg}") from exc
 
 
 def path_inside(folder: str | os.PathLike, rel: object, where: str, *, what: str = "the folder",

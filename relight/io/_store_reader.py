@@ -21,7 +21,7 @@ from ._capture import _FILES as _FOLDER_FILES
 from ._capture import _FORMAT as _FOLDER_FORMAT
 from ._capture import _VERSION as _FOLDER_VERSION
 from ._capture import _atomic_folder, _rig_light_count, open_capture
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, set_refusal_as
 from ._exr import write_exr_channels
 from ._json import read_json, write_json
 from ._store import (
@@ -108,8 +108,9 @@ class CaptureStore:
         if (self.path / RESULT_MANIFEST).is_file():
             # Inside a command's result set (relight simulate --out X.zarr): the manifest, rig and cameras must be
             # the files that set committed (its manifest lists them; the chunks are this manifest's generation's).
-            rs = open_result_set(self.path)
-            rs.check([n for n in (MARKER, *(str(files.get(k)) for k in _FILES)) if n in rs.files])
+            with set_refusal_as(self.path, CaptureStoreError):
+                rs = open_result_set(self.path)
+                rs.check([n for n in (MARKER, *(str(files.get(k)) for k in _FILES)) if n in rs.files])
         self._open_parts(arrays, files, where)
         self.chunks = tuple(int(c) for c in self._radiance.chunks)
 

@@ -42,7 +42,8 @@ then swapped into place; the folder is locked meanwhile). Reading validates
 everything and raises ``FileNotFoundError`` or ``ImageFormatError`` (a
 ``ValueError``) naming the file and the problem; a set whose files do not all
 match its manifest (old and new files mixed by an interrupted writer, or an
-edit) is refused (``ResultSetError``).
+edit) is refused too (an ``ImageFormatError`` from the
+``relight.results.ResultSetError``).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ import numpy as np
 from ..image._preview import dilate
 from ..materials._maps import MODELS, MaterialMaps, material_maps
 from ..results import ResultSetError, open_result_set, result_set, writing
-from ._errors import ImageFormatError, format_version
+from ._errors import ImageFormatError, format_version, set_refusal_as
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import jsonable, read_json, write_json
 
@@ -395,10 +396,11 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
 
     Raises FileNotFoundError (folder, maps.json or a map missing) or
     ImageFormatError (corrupt EXR, missing channel, wrong resolution, bad
-    maps.json), each naming the file; ``ResultSetError`` (an ImageFormatError)
-    when the folder has no result-set manifest or a file differs from it (a
-    mix of two writes), checked after the content so that a damaged file is
-    named for what is wrong with it.
+    maps.json), each naming the file; also ImageFormatError (from the
+    ``relight.results.ResultSetError`` it chains) when the folder has no
+    result-set manifest or a file differs from it (a mix of two writes),
+    checked after the content so that a damaged file is named for what is
+    wrong with it.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -450,9 +452,10 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         coverage=coverage,
         info=info,
     )
-    if isinstance(rs, ResultSetError):
-        raise rs
-    rs.check(SET_FILES)
+    with set_refusal_as(folder):
+        if isinstance(rs, ResultSetError):
+            raise rs
+        rs.check(SET_FILES)
     return tex, tex.surface_info
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from relight.io import open_capture, read_exr, read_maps
+from relight.io import ImageFormatError, open_capture, read_exr, read_maps
 from relight.results import ResultSetError, open_result_set
 from relight.results._resultset import _set_files
 
@@ -158,8 +158,9 @@ def test_fit_killed_while_replacing_a_map_set(capture, env):
     # A mix of the two (what an in-place writer killed mid-set left): the new maps.json (its fit_options say
     # gn) beside the old maps. Every file is valid on its own; the set is refused.
     shutil.copy(out / "maps.json", snapshot / "maps.json")
-    with pytest.raises(ResultSetError, match=r"maps\.json: differs .* mixed"):
+    with pytest.raises(ImageFormatError, match=r"maps\.json: differs .* mixed") as err:
         read_maps(snapshot)
+    assert isinstance(err.value.__cause__, ResultSetError)
 
 
 def test_render_killed_while_replacing_its_images(capture, env):

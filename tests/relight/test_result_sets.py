@@ -16,13 +16,23 @@ import tempfile
 import textwrap
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import relight
 import stage
 from relight.cli import main
-from relight.io import read_maps, write_maps
+from relight.io import (
+    CaptureStoreError,
+    ImageFormatError,
+    open_capture,
+    open_capture_store,
+    read_maps,
+    write_capture,
+    write_capture_store,
+    write_maps,
+)
 from relight.results import (
     MANIFEST,
     FolderLock,
@@ -120,12 +130,38 @@ def test_mixed_map_set_is_refused(surface, tmp_path):
     tex, _ = read_maps(old)
     np.testing.assert_allclose(tex.albedo[tex.coverage], 0.2, rtol=1e-6)
     shutil.copy(new / "albedo.exr", old / "albedo.exr")
-    with pytest.raises(ResultSetError, match=r"albedo\.exr: differs .* mixed"):
+    # The reader's own file-format error, chained from the result set's refusal.
+    with pytest.raises(ImageFormatError, match=r"albedo\.exr: differs .* mixed") as err:
         read_maps(old)
+    assert isinstance(err.value.__cause__, ResultSetError)
     assert isinstance(ResultSetError("x"), ValueError)  # the CLI reports it like any bad input file
     (new / MANIFEST).unlink()  # a set without a manifest (interrupted before its last file) is no set
-    with pytest.raises(ResultSetError, match="no relight-set.json"):
+    with pytest.raises(ImageFormatError, match="no relight-set.json") as err:
         read_maps(new)
+    assert isinstance(err.value.__cause__, ResultSetError)
+    assert str(new) in str(err.value)
+
+
+def test_a_mixed_capture_folder_or_store_is_refused_as_a_format_error(tmp_path):
+    """A capture folder or store inside a result set whose rig.json is not the set's own: the reader's
+    format error (CaptureStoreError for a store), naming the file, chained from the ResultSetError."""
+    rig = stage.geodesic_dome(0)  # 12 distant lights
+    radiance = np.full((1, rig.num_lights, 4, 3), 0.5, np.float32)
+    cameras = stage.camera_ring(1, 1300.0, fov_deg=11.0, width=8, height=8)
+    folder, store = tmp_path / "cap", tmp_path / "cap.zarr"
+    write_capture(folder, radiance, rig, cameras)
+    capture = stage.Capture(radiance=jnp.asarray(radiance), mask=jnp.ones(radiance.shape[:3], bool), rig=rig,
+                            cameras=tuple(cameras))
+    write_capture_store(store, capture)
+    for path, open_it, error in ((folder, open_capture, ImageFormatError),
+                                 (store, open_capture_store, CaptureStoreError)):
+        write_manifest(path, "simulate")
+        open_it(path)
+        rig_json = next(p for p in path.rglob("rig.json"))
+        rig_json.write_text(rig_json.read_text().replace("\n", "\n\n", 1))  # the same rig, other bytes
+        with pytest.raises(error, match=r"rig\.json: differs") as err:
+            open_it(path)
+        assert isinstance(err.value.__cause__, ResultSetError)
 
 
 def test_a_failed_write_leaves_the_old_set_and_nothing_else(surface, tmp_path, monkeypatch):
