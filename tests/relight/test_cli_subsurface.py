@@ -19,36 +19,14 @@ from relight.cli import main
 from relight.cli._common import SUBSURFACE_PRESETS, preset_mean_free_path
 from relight.io import read_capture, read_exr, read_maps, write_exr, write_texture_set
 
+from ..scenes import write_sphere_obj
+
 RES = 24
 RADIUS = 6.0  # mm
 PRESET = "skin1"
 SSS, GGX = MODELS.index("subsurface"), MODELS.index("ggx")
 # skin1 (Jensen et al. 2001): mfp = 1 / sqrt(3 sigma_a sigma_t'), in mm.
 SKIN1_MFP = np.array([3.6733, 1.3665, 0.68269])
-
-
-def _sphere_obj(path, n_theta=24, n_phi=48):
-    """A UV sphere of RADIUS (mm) with a lat-long UV atlas (v = 1 at the north pole, +y)."""
-    th = np.linspace(0, np.pi, n_theta + 1)
-    ph = np.linspace(0, 2 * np.pi, n_phi + 1)
-    T, Ph = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.sin(Ph), np.cos(T), np.sin(T) * np.cos(Ph)], -1).reshape(-1, 3)
-    uv = np.stack([Ph / (2 * np.pi), 1 - T / np.pi], -1).reshape(-1, 2)
-    W = n_phi + 1
-    faces = []
-    for i in range(n_theta):
-        for j in range(n_phi):
-            a, b, c, e = i * W + j, i * W + j + 1, (i + 1) * W + j, (i + 1) * W + j + 1
-            if i > 0:
-                faces.append((a, c, b))
-            if i < n_theta - 1:
-                faces.append((b, c, e))
-    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in RADIUS * d]
-    lines += [f"vt {u:.9g} {v:.9g}" for u, v in uv]
-    lines += [f"vn {x:.9g} {y:.9g} {z:.9g}" for x, y, z in d]
-    lines += [f"f {a + 1}/{a + 1}/{a + 1} {b + 1}/{b + 1}/{b + 1} {c + 1}/{c + 1}/{c + 1}" for a, b, c in faces]
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 def _sim(mesh, out, *extra, res=RES):
@@ -59,7 +37,7 @@ def _sim(mesh, out, *extra, res=RES):
 @pytest.fixture(scope="module")
 def sss(tmp_path_factory):
     root = tmp_path_factory.mktemp("sss")
-    mesh = _sphere_obj(root / "sphere.obj")
+    mesh = write_sphere_obj(root / "sphere.obj", RADIUS, 24, 48)
     cap, maps = root / "capture", root / "maps"
     assert _sim(mesh, cap, "--subsurface", PRESET) == 0
     assert main(["fit", str(cap), "--subsurface", "region", "--out", str(maps), "--quiet"]) == 0

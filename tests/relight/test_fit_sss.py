@@ -10,21 +10,16 @@ import relight
 import skin_bssrdf
 import stage
 
-from ..scenes import uv_sphere
+from ..scenes import sphere_view
 
 
 @pytest.fixture(scope="module")
 def sphere():
     # A 6 mm sphere: curvature gives irradiance gradients (terminators) that a
     # mean free path of ~1 mm visibly softens; convex, so no cast shadows.
-    mesh = uv_sphere(radius=6.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 32)
-    rig = stage.geodesic_dome(1)  # 42 distant lights
-    cam = stage.look_at((0.0, 0.0, 400.0), fov_deg=4, width=64, height=64)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    keep = np.nonzero(cv[0])[0]
-    return surface.subset(keep), rig, cam, lv[keep], cv[:, keep]
+    # 42 distant lights; every texel the camera sees.
+    _, surface, rig, cam, lv, cv = sphere_view(radius=6.0, res=32, distance=400.0, fov_deg=4, size=64, min_cos=-1.0)
+    return surface, rig, cam, lv, cv
 
 
 def _capture(sphere, mfp, noise=0.01, seed=0):
@@ -41,7 +36,8 @@ def _capture(sphere, mfp, noise=0.01, seed=0):
         prof = skin_bssrdf.Burley.from_mean_free_path(A, jnp.broadcast_to(jnp.asarray(mfp), (P, 3)), config="dmfp")
         op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), 8.0,
                                                  dtype=jnp.float64)
-        cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, 1.4))
+        sss = stage.Subsurface(prof, op, skin_bssrdf.SKIN_ETA)
+        cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=sss)
     eps = 1 + noise * np.random.default_rng(seed).standard_normal(cap.radiance.shape)
     return stage.Capture(cap.radiance * jnp.asarray(eps, cap.radiance.dtype), cap.mask, cap.rig, cap.cameras), A
 

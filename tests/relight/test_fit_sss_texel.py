@@ -23,7 +23,7 @@ import stage
 from relight.fitting import _subsurface_texel as tx
 from relight.fitting._subsurface import MIN_SPREAD, spread_fraction
 
-from ..scenes import uv_sphere
+from ..scenes import sphere_view
 
 RADIUS_MM = 5.0
 SUBSURFACE = relight.MODELS.index("subsurface")
@@ -31,14 +31,9 @@ SUBSURFACE = relight.MODELS.index("subsurface")
 
 @pytest.fixture(scope="module")
 def sphere():
-    mesh = uv_sphere(radius=6.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 32)
-    rig = stage.geodesic_dome(1)
-    cam = stage.look_at((0.0, 0.0, 400.0), fov_deg=4, width=64, height=64)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    keep = np.nonzero(cv[0])[0]
-    return surface.subset(keep), rig, cam, lv[keep], cv[:, keep]
+    # test_fit_sss's scene: every texel the camera sees.
+    _, surface, rig, cam, lv, cv = sphere_view(radius=6.0, res=32, distance=400.0, fov_deg=4, size=64, min_cos=-1.0)
+    return surface, rig, cam, lv, cv
 
 
 def _scene(sphere, truth, seed):
@@ -52,7 +47,7 @@ def _scene(sphere, truth, seed):
     prof = skin_bssrdf.Burley.from_mean_free_path(A, jnp.asarray(truth), config="dmfp")
     op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), RADIUS_MM,
                                              dtype=jnp.float64)
-    cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, 1.4))
+    cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, skin_bssrdf.SKIN_ETA))
     eps = 1 + 0.01 * np.random.default_rng(seed).standard_normal(cap.radiance.shape)
     cap = stage.Capture(cap.radiance * jnp.asarray(eps, cap.radiance.dtype), cap.mask, cap.rig, cap.cameras)
     return cap, relight.fit(cap, surface), np.asarray(A)

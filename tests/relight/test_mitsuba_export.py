@@ -14,37 +14,15 @@ import stage
 from relight.export import mitsuba_envmap, write_mitsuba_scene
 from relight.io import read_maps, write_exr, write_maps
 
+from ..scenes import write_sphere_obj
+
 RADIUS = 50.0  # mm
-
-
-def _uv_sphere_obj(path, n_theta=48, n_phi=96):
-    """A UV sphere of RADIUS with a lat-long UV atlas (v = 1 at the north pole, +y)."""
-    th = np.linspace(0, np.pi, n_theta + 1)
-    ph = np.linspace(0, 2 * np.pi, n_phi + 1)
-    T, Ph = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.sin(Ph), np.cos(T), np.sin(T) * np.cos(Ph)], -1).reshape(-1, 3)
-    uv = np.stack([Ph / (2 * np.pi), 1 - T / np.pi], -1).reshape(-1, 2)
-    faces = []
-    W = n_phi + 1
-    for i in range(n_theta):
-        for j in range(n_phi):
-            a, b, c, e = i * W + j, i * W + j + 1, (i + 1) * W + j, (i + 1) * W + j + 1
-            if i > 0:
-                faces.append((a, c, b))
-            if i < n_theta - 1:
-                faces.append((b, c, e))
-    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in RADIUS * d]
-    lines += [f"vt {u:.9g} {v:.9g}" for u, v in uv]
-    lines += [f"vn {x:.9g} {y:.9g} {z:.9g}" for x, y, z in d]
-    lines += [f"f {a + 1}/{a + 1}/{a + 1} {b + 1}/{b + 1}/{b + 1} {c + 1}/{c + 1}/{c + 1}" for a, b, c in faces]
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 @pytest.fixture(scope="module")
 def sphere(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sphere")
-    mesh = stage.load_mesh(_uv_sphere_obj(folder / "sphere.obj"), require_uv=True)
+    mesh = stage.load_mesh(write_sphere_obj(folder / "sphere.obj", RADIUS, 48, 96), require_uv=True)
     return mesh, stage.texel_samples(mesh, 64)
 
 
