@@ -248,7 +248,8 @@ def test_round_trip_on_the_head_under_the_light_stage_x_with_three_cameras(tmp_p
     flagged; 96 px / 64 texels: 0.007 / 0.046, docs/RESULTS.md): median 0.03,
     p90 0.25, alpha median 0.06, flagged < 3%."""
     from relight.cli import main
-    from relight.cli._common import demo_material, front_ring
+    from relight.materials import demo_material
+    from stage import front_ring
 
     mesh = stage.load_head()
     size = 72
