@@ -42,8 +42,6 @@ from ._output import writing as writing
 from ._progress import Bar as Bar
 from ._progress import bar as bar
 from ._progress import summary as summary
-from ._specs import demo_material as demo_material
-from ._specs import front_ring as front_ring
 from ._specs import parse_cameras as parse_cameras
 from ._specs import parse_rig as parse_rig
 from ._specs import preset_mean_free_path as preset_mean_free_path

@@ -74,20 +74,6 @@ def parse_cameras(spec: str | None, mesh, size: int, default=None) -> tuple:
     return stage.load_cameras(p)
 
 
-def front_ring(mesh, n: int, size: int) -> tuple:
-    """``stage.front_ring``: ``n`` front cameras of ``size`` pixels around ``mesh``."""
-    import stage
-
-    return stage.front_ring(mesh, n, size)
-
-
-def demo_material(surface):
-    """``relight.materials.demo_material``: the demo's ground-truth maps over ``surface``."""
-    from ..materials import demo_material as material
-
-    return material(surface)
-
-
 def preset_mean_free_path(name: str):
     """``relight.materials.preset_mean_free_path`` of ``--subsurface NAME``; CLIError naming the flag."""
     from ..materials import preset_mean_free_path as preset
