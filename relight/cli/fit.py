@@ -1,12 +1,10 @@
-"""``relight fit``: a texel-space capture (``relight.fitting.fit_resumable``, then with --subsurface
-``subsurface_step``), a photo capture (``relight.io.photos_to_texels`` first) or a DiLiGenT object
-(``relight.fitting.fit_diligent``) fitted and written with its report (``relight.fitting.write_fit_folder``).
-docs/cli.md shows the same in Python."""
+"""``relight fit``: a texel-space capture, a store or a photo capture fitted and written with its report
+(``relight.fitting.fit_folder``), or a DiLiGenT object (``relight.fitting.fit_diligent_folder``); this module
+checks the flags, makes that one call and prints. docs/cli.md shows the same in Python."""
 
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +28,6 @@ from ._common import (
     mesh_from_args,
     output_set,
     summary,
-    warn_mesh_size,
     write_index_page,
     write_settings,
 )
@@ -122,8 +119,6 @@ def run(args) -> int:
 
     envmap = envmap_path(args.envmap)
     load_envmap(envmap)  # refuse a missing or corrupt map before the fit, not after
-    kwargs = {"solver": args.solver, **({"model": args.model} if args.model else {}),
-              **({"normals": True} if args.normals else {})}
     at_least("--block", args.block, 1)
     devices = parse_devices(args.devices)
     capture_dir = Path(args.capture)
@@ -131,81 +126,72 @@ def run(args) -> int:
     photos = not diligent and is_photo_capture(capture_dir)
     _check_subsurface_flags(args, capture_dir, "diligent" if diligent else "photos" if photos else "texel")
     if diligent:
-        return _run_diligent(args, capture_dir, kwargs, devices)
+        return _run_diligent(args, capture_dir, devices)
     if args.subsample != 1:
         raise CLIError("--subsample applies to DiLiGenT folders only")
+    if not photos:
+        _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig (they "
+                                  "apply to photo captures)")
+    mesh = _photo_mesh(args, capture_dir) if photos else None
     # Refused before the capture is read; output_set checks again with the folder locked.
     check_out(args.out, "fit", keep=(PARTS,))
     with output_set(args.out, "fit", args.quiet, keep=(PARTS,)) as tmp:
-        return _run_texel(args, capture_dir, photos, kwargs, devices, envmap, Path(args.out), tmp)
+        return _run_texel(args, capture_dir, mesh, devices, envmap, Path(args.out), tmp)
 
 
-def _fit(args, capture, surface, out: Path, kwargs: dict, devices, metadata: dict, times: dict):
-    """The fit in resumable parts (out/.parts), then --subsurface's step: (Fit, parts entry, settings|None)."""
-    from ..fitting import FitOptions, PartsFingerprintError, fit_resumable, subsurface_step
-    from ..io import read_regions
+class _Bars:
+    """The progress callback of the fit: the reading phases ("read mask", "read capture") on a bar that says
+    "reading" until its first unit, the others on one that says "compiling"; a bar closes when the other kind
+    starts."""
+
+    def __init__(self, quiet):
+        self.quiet, self.bars = quiet, {}
+
+    def __call__(self, phase: str, done: int, total) -> None:
+        kind = "reading" if str(phase).startswith("read") else "compiling"
+        for other in [k for k in self.bars if k != kind]:
+            self.bars.pop(other).close()
+        if kind not in self.bars:
+            self.bars[kind] = bar(total, phase, self.quiet, waiting=kind)
+        self.bars[kind](phase, done, total)
+
+    def __enter__(self) -> _Bars:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for b in self.bars.values():
+            b.close()
+
+
+def _run_texel(args, capture_dir: Path, mesh, devices, envmap: Path, out: Path, tmp: Path) -> int:
+    """A texel-space or photo capture fitted into the result set built at ``tmp`` (``out`` once swapped)."""
+    from ..fitting import FitOptions, PartsFingerprintError, fit_folder
     from ..results import commit_point
 
-    t0 = time.perf_counter()
-    with bar(surface.num_samples, "fit (texels)", args.quiet) as b:
+    out.mkdir(parents=True, exist_ok=True)  # for out/.parts; the set itself is built in tmp
+    with _Bars(args.quiet) as b:
         # commit_point("block"): the kill tests' named point (a no-op unless a test injects a hook).
         options = FitOptions(block=args.block, devices=devices, progress=b, on_block=lambda *_: commit_point("block"))
         try:
-            fitted, parts = fit_resumable(capture, surface, out / PARTS, resume=args.resume, options=options,
-                                          **kwargs)
+            r = fit_folder(capture_dir, tmp, parts=out / PARTS, model=args.model, normals=args.normals,
+                           solver=args.solver, subsurface=None if args.subsurface == "off" else args.subsurface,
+                           regions=args.regions, eta=args.eta, eta_from="--eta", passes=args.passes,
+                           resume=args.resume, options=options, resolution=args.resolution,
+                           grazing_deg=args.grazing_deg, min_views=args.min_views, rig_units=args.rig_units,
+                           rig_up=args.rig_up, envmap=envmap, **({} if mesh is None else mesh))
         except PartsFingerprintError as err:
             raise CLIError(f"--resume: {out / PARTS} holds the parts of another fit (the capture, the surface or a "
                            f"setting such as --model, --solver, --normals, --block or --devices changed): rerun "
                            f"without --resume to fit afresh ({err})") from None
-    times["fit_s"] = time.perf_counter() - t0
-    if args.subsurface == "off":
-        return fitted, parts, None
-    t0 = time.perf_counter()
-    regions = None if args.regions is None else read_regions(args.regions, surface)
-    with bar(None, "fit subsurface", args.quiet) as b:
-        fitted, sss = subsurface_step(capture, surface, fitted, per=args.subsurface, regions=regions, eta=args.eta,
-                                      metadata=metadata, passes=args.passes, model=args.model or "ggx",
-                                      normals=args.normals, solver=args.solver,
-                                      options=FitOptions(block=args.block, devices=devices, progress=b))
-    times["subsurface_s"] = time.perf_counter() - t0
-    sss["eta_from"] = {"argument": "--eta"}.get(sss["eta_from"], sss["eta_from"])
-    if regions is not None:
-        sss["regions"]["file"] = str(Path(args.regions).resolve())
-    return fitted, parts, sss
-
-
-def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, envmap: Path, out: Path,
-               tmp: Path) -> int:
-    """A texel-space or photo capture fitted into the result set built at ``tmp`` (``out`` once swapped)."""
-    import stage
-
-    from ..fitting import read_truth, write_fit_folder
-
-    t0, times, metadata, coverage = time.perf_counter(), {}, {}, None
-    if photos:
-        capture, surface, mesh, info, coverage = _ingest_photos(args, capture_dir)
-    else:
-        capture, surface, mesh, metadata = _read_texel(args, capture_dir)
-        info = metadata["surface"]
-    times["read_s"] = time.perf_counter() - t0
-    out.mkdir(parents=True, exist_ok=True)  # for out/.parts; the set itself is built in tmp
-    fitted, parts, sss = _fit(args, capture, surface, out, kwargs, devices, metadata, times)
-    meta = {"capture": str(capture_dir.resolve()), "fit_options": kwargs, "source": "relight fit"}
-    report, scene = write_fit_folder(tmp, fitted, surface, cameras=capture.cameras, rig=capture.rig, mesh=mesh,
-                                     surface_info=info, metadata=meta, envmap=envmap, normals=args.normals,
-                                     truth=read_truth(capture_dir, surface), subsurface=sss, coverage=coverage,
-                                     timings=times, extra={"parts": parts})
-    write_settings(tmp, "fit", args, capture=str(capture_dir.resolve()), envmap=str(envmap), fit_options=kwargs,
-                   mesh=info, samples=surface.num_samples, input="photos" if photos else "texel", subsurface=sss,
-                   mitsuba_scene=None if scene is None else str(out / scene.relative_to(tmp)), block=args.block,
-                   devices=parts["devices"], parts=str(out / PARTS), streamed=not isinstance(capture, stage.Capture))
+    report, parts, sss = r.report, r.parts, r.subsurface
+    write_settings(tmp, "fit", args, capture=str(capture_dir.resolve()), envmap=str(envmap), fit_options=r.fit_options,
+                   mesh=r.surface_info, samples=r.surface.num_samples, input=r.kind, subsurface=sss,
+                   mitsuba_scene=None if r.scene is None else str(out / r.scene.relative_to(tmp)), block=args.block,
+                   devices=parts["devices"], parts=str(out / PARTS), streamed=r.streamed)
     if not args.no_index:
-        write_index_page(tmp, lambda: _index_sweeps(tmp, photos, envmap, fitted, surface, mesh, capture), "fit",
-                         args.quiet, location=out)
-    if report["failed_fraction"] >= 0.5:
-        print(f"relight fit: warning: {100 * report['failed_fraction']:.0f}% of the texels are flagged (a solver "
-              "failure, or fewer than 8 valid lights: a rig with more lights, or more cameras, covers them); their "
-              "maps hold the defaults", file=sys.stderr)
+        write_index_page(tmp, lambda: _index_sweeps(tmp, r, envmap), "fit", args.quiet, location=out)
+    for w in r.warnings:
+        print(f"relight fit: warning: {w}", file=sys.stderr)
     if summary(args):
         tail = ""
         if sss is not None:
@@ -218,34 +204,20 @@ def _run_texel(args, capture_dir: Path, photos: bool, kwargs: dict, devices, env
     return 0
 
 
-def _index_sweeps(tmp: Path, photos: bool, envmap: Path, fitted, surface, mesh, capture):
+def _index_sweeps(tmp: Path, r, envmap: Path):
     """index.html's slider: the capture the maps were fitted from, relit image-based (read back whole if small
     enough: ``relight.view.folder_sweeps``); without one (a photo capture, a large one), the fitted maps
-    rendered model-based through the capture's rig."""
+    rendered model-based through the capture's rig (``r``: the ``relight.fitting.FitFolderResult``)."""
     from ..envmap import load_envmap
     from ..view import folder_sweeps, maps_sweep
 
-    rows, note = ([], None) if photos else folder_sweeps(tmp, envmap, INDEX_FRAMES, INDEX_SIZE, model=False)
+    rows, note = ([], None) if r.kind == "photos" else folder_sweeps(tmp, envmap, INDEX_FRAMES, INDEX_SIZE,
+                                                                     model=False)
     if rows:
         return rows, note
-    return [maps_sweep(fitted.maps(surface), surface, mesh, capture.cameras[0], load_envmap(envmap), rig=capture.rig,
-                       frames=INDEX_FRAMES, size=INDEX_SIZE,
+    return [maps_sweep(r.fit.maps(r.surface), r.surface, r.mesh, r.capture.cameras[0], load_envmap(envmap),
+                       rig=r.capture.rig, frames=INDEX_FRAMES, size=INDEX_SIZE,
                        label="the fitted maps rendered model-based (the capture's rig)")], None
-
-
-def _read_texel(args, capture_dir: Path):
-    """A texel-space capture folder or store: opened lazily (``open_texel_capture``: the mask is read
-    to find the seen texels, the radiance block by block later), or, with --subsurface, loaded whole."""
-    from ..io import load_texel_capture, open_texel_capture
-
-    _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig "
-                              "(they apply to photo captures)")
-    if args.subsurface != "off":
-        # The subsurface fit couples texels through the diffusion operator: it takes the capture whole.
-        with bar(None, "read capture (images)", args.quiet, waiting="reading") as b:
-            return load_texel_capture(capture_dir, progress=b)
-    with bar(None, "read mask", args.quiet, waiting="reading") as b:
-        return open_texel_capture(capture_dir, progress=b)
 
 
 def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
@@ -281,10 +253,9 @@ def _refuse_photo_flags(args, why: str) -> None:
         raise CLIError(f"{' / '.join(given)}: {why}")
 
 
-def _ingest_photos(args, capture_dir: Path):
-    """A photo capture resampled onto ``--mesh``'s texel grid: (capture, surface, mesh, mesh spec,
-    PhotoTexelReport)."""
-    from ..io import photos_to_texels, read_photo_capture, spec_mesh
+def _photo_mesh(args, capture_dir: Path) -> dict:
+    """fit_folder's ``mesh`` and ``mesh_info`` of a photo capture's --mesh flags; CLIError on bad ones."""
+    from ..io import spec_mesh
 
     if args.mesh is None:
         raise CLIError(f"{capture_dir} is a photo capture (camera space): --mesh MESH is needed to resample it onto "
@@ -297,46 +268,34 @@ def _ingest_photos(args, capture_dir: Path):
         info = mesh_from_args(args)
     except FileNotFoundError as err:
         raise CLIError(f"--mesh: {err}") from None
-    mesh = spec_mesh(info, "--mesh")
-    photos = read_photo_capture(capture_dir, rig_units=args.rig_units, rig_up=args.rig_up)
-    warn_mesh_size("fit", mesh, photos.rig)
-    with bar(photos.n_views, "photos to texels (cameras)", args.quiet) as b:
-        capture, surface, coverage = photos_to_texels(photos, mesh, args.resolution, grazing_deg=args.grazing_deg,
-                                                      min_views=args.min_views, progress=b)
-    return capture, surface, mesh, info, coverage
+    return {"mesh": spec_mesh(info, "--mesh"), "mesh_info": info}
 
 
-def _run_diligent(args, folder: Path, kwargs: dict, devices) -> int:
-    """``relight fit DILIGENT_DIR``: ``relight.fitting.fit_diligent`` and ``write_diligent_folder``."""
-    from ..fitting import DILIGENT_MODEL, FitOptions, fit_diligent, write_diligent_folder
-    from ..io import read_diligent
+def _run_diligent(args, folder: Path, devices) -> int:
+    """``relight fit DILIGENT_DIR``: ``relight.fitting.fit_diligent_folder``."""
+    from ..fitting import DILIGENT_MODEL, FitOptions, fit_diligent_folder
 
     _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
     if args.resume:
         raise CLIError(f"--resume: {folder} is a DiLiGenT folder, fitted in one go (no parts)")
     at_least("--subsample", args.subsample, 1)
-    t0, times = time.perf_counter(), {}
-    d = read_diligent(folder)
-    times["read_s"] = time.perf_counter() - t0
     check_out(args.out, "fit")
     out = Path(args.out)
     with output_set(args.out, "fit", args.quiet) as tmp:
-        t0 = time.perf_counter()
-        with bar(None, "fit (pixels)", args.quiet) as b:
-            options = FitOptions(block=args.block, devices=devices, progress=b)
-            fitted, surface, entry = fit_diligent(d, name=folder.name, subsample=args.subsample, options=options,
-                                                  **kwargs)
-        times["fit_s"] = time.perf_counter() - t0
-        write_diligent_folder(tmp, fitted, surface, d.mask, entry, times)
-        write_settings(tmp, "fit", args, capture=str(folder.resolve()), input="diligent", samples=surface.num_samples,
-                       fit_options={"model": DILIGENT_MODEL, **kwargs, "normals": True, "block": args.block,
-                                    "devices": devices})
+        with _Bars(args.quiet) as b:
+            r = fit_diligent_folder(folder, tmp, model=args.model, normals=args.normals, solver=args.solver,
+                                    subsample=args.subsample,
+                                    options=FitOptions(block=args.block, devices=devices, progress=b))
+        write_settings(tmp, "fit", args, capture=str(folder.resolve()), input="diligent",
+                       samples=r.surface.num_samples, fit_options={"model": DILIGENT_MODEL, **r.fit_options,
+                                                                   "normals": True, "block": args.block,
+                                                                   "devices": devices})
         if not args.no_index:
             write_index_page(tmp, lambda: ([], "no rotation slider: a DiLiGenT object is lit by its calibrated "
                                                "directional lights only (no rig to relight an environment with)"),
                              "fit", args.quiet, location=out)
     if summary(args):
-        e = entry.get("normal_error_deg")
+        e = r.report["diligent"].get("normal_error_deg")
         tail = "" if e is None else f"; mean normal error {e['mean']:.2f} deg"
-        print(f"wrote {out}/ (normals, albedo, report.md); {surface.num_samples} pixels{tail}")
+        print(f"wrote {out}/ (normals, albedo, report.md); {r.surface.num_samples} pixels{tail}")
     return 0

@@ -7,6 +7,9 @@ or per texel, with its own ladder) and the fit to pattern captures
 
 from ._driver import LOSSES as LOSSES
 from ._driver import fit as fit
+from ._folder import FitFolderResult as FitFolderResult
+from ._folder import fit_diligent_folder as fit_diligent_folder
+from ._folder import fit_folder as fit_folder
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
 from ._lm import NormalLevenbergMarquardt as NormalLevenbergMarquardt
