@@ -75,7 +75,7 @@ def run(args) -> int:
     return 0
 
 
-def run_demo(out: Path, resolution: int = 96, envmap: Path | None = None, image_size: int = 320, cameras: int = 3,
+def run_demo(out: Path, resolution: int = 96, envmap: str | Path | None = None, image_size: int = 320, cameras: int = 3,
              noise: float = 0.01, seed: int = 0, passes: int = 2, quiet: int | bool = 0, index: bool = True) -> dict:
     """``relight.demo.run_demo`` into the result set ``out`` (refused before the work unless it may be
     replaced), with progress bars and index.html; returns the report."""
