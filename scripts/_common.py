@@ -204,25 +204,11 @@ def errors(f: relight.Fit, rho, alpha, normal):
     return e_rho, e_alpha, e_n
 
 
-def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0)) -> stage.Mesh:
-    """A latitude-longitude sphere mesh with an equirectangular UV map (a seam at u = 0)."""
-    import numpy as np
-
+def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0)):
+    """``stage.uv_sphere``, imported on use (this module loads no JAX at import)."""
     import stage
 
-    th = np.linspace(0, np.pi, n_lat + 1)
-    ph = np.linspace(0, 2 * np.pi, n_lon + 1)
-    T, Pp = np.meshgrid(th, ph, indexing="ij")
-    n = np.stack([np.sin(T) * np.cos(Pp), np.cos(T), np.sin(T) * np.sin(Pp)], -1).reshape(-1, 3)
-    verts = radius * n + np.asarray(center)
-    uv = np.stack([Pp.ravel() / (2 * np.pi), 1 - T.ravel() / np.pi], 1)
-    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
-    # Drop the zero-area triangles at the poles.
-    v = verts[faces]
-    keep = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 1e-9
-    return stage.Mesh(verts, faces[keep], n, uv, "sphere")
+    return stage.uv_sphere(radius, n_lat, n_lon, center)
 
 
 # --------------------------------------------------------------------------- texel captures of the memory benchmarks

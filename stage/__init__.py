@@ -41,6 +41,7 @@ from ._mesh import check_mesh as check_mesh
 from ._mesh import head_mesh_path as head_mesh_path
 from ._mesh import load_head as load_head
 from ._mesh import load_mesh as load_mesh
+from ._mesh import uv_sphere as uv_sphere
 from ._pattern_files import PATTERN_FORMAT as PATTERN_FORMAT
 from ._pattern_files import PATTERN_FORMAT_VERSION as PATTERN_FORMAT_VERSION
 from ._pattern_files import PATTERN_POSITION_TOLERANCE_MM as PATTERN_POSITION_TOLERANCE_MM

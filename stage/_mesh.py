@@ -203,3 +203,32 @@ def check_mesh(mesh: Mesh, area_tol: float = 0.0, require_uv: bool = False) -> M
     bad_n = np.nonzero(~(np.abs(nl - 1) < 1e-3))[0]
     dropped = 0 if mesh.dropped_faces is None else len(mesh.dropped_faces)
     return MeshReport(len(V), len(F), degenerate, rep, oor, nonfinite, bad_n, mesh.uv is not None, dropped)
+
+
+def uv_sphere(radius: float = 50.0, n_lat: int = 48, n_lon: int = 96, center=(0.0, 0.0, 0.0),
+              with_uv: bool = True) -> Mesh:
+    """A latitude-longitude sphere mesh with an equirectangular UV map (a seam at u = 0).
+
+    Args:
+        radius: the radius in mm, > 0.
+        n_lat, n_lon: the rings from pole to pole and the segments around the y axis (>= 2, >= 3).
+        center: the centre [3] in mm.
+        with_uv: False: a mesh without UVs.
+
+    Returns:
+        A ``Mesh`` with its analytic vertex normals; the zero-area triangles at the poles are dropped.
+    """
+    if not radius > 0 or n_lat < 2 or n_lon < 3:
+        raise ValueError(f"uv_sphere: need radius > 0, n_lat >= 2, n_lon >= 3, got {radius}, {n_lat}, {n_lon}")
+    th = np.linspace(0, np.pi, n_lat + 1)
+    ph = np.linspace(0, 2 * np.pi, n_lon + 1)
+    T, Pp = np.meshgrid(th, ph, indexing="ij")
+    n = np.stack([np.sin(T) * np.cos(Pp), np.cos(T), np.sin(T) * np.sin(Pp)], -1).reshape(-1, 3)
+    verts = radius * n + np.asarray(center)
+    uv = np.stack([Pp.ravel() / (2 * np.pi), 1 - T.ravel() / np.pi], 1)
+    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
+    v = verts[faces]
+    keep = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 1e-9
+    return Mesh(verts, faces[keep], n, uv if with_uv else None, "sphere")

@@ -39,20 +39,8 @@ def plane(size=200.0, n=40, y=0.0):
 
 
 def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0), with_uv=True):
-    """A latitude-longitude sphere with an equirectangular UV map (a seam at u = 0)."""
-    th = np.linspace(0, np.pi, n_lat + 1)
-    ph = np.linspace(0, 2 * np.pi, n_lon + 1)
-    T, Pp = np.meshgrid(th, ph, indexing="ij")
-    n = np.stack([np.sin(T) * np.cos(Pp), np.cos(T), np.sin(T) * np.sin(Pp)], -1).reshape(-1, 3)
-    verts = radius * n + np.asarray(center)
-    uv = np.stack([Pp.ravel() / (2 * np.pi), 1 - T.ravel() / np.pi], 1)
-    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
-    # Drop the zero-area triangles at the poles.
-    v = verts[faces]
-    keep = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 1e-9
-    return stage.Mesh(verts, faces[keep], n, uv if with_uv else None, "sphere")
+    """``stage.uv_sphere``: a latitude-longitude sphere with an equirectangular UV map."""
+    return stage.uv_sphere(radius, n_lat, n_lon, center, with_uv)
 
 
 def merge(*meshes, uv_of=0):
