@@ -43,6 +43,19 @@ def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0), with_uv=T
     return stage.uv_sphere(radius, n_lat, n_lon, center, with_uv)
 
 
+def small_render_scene(seed: int):
+    """(mesh, surface, maps, env, wo) of the render tests: an 8 x 16 sphere on an 8^2 texel grid, uniform
+    Lambert + GGX maps, a random 8 x 16 environment (``seed``) and the normals as view directions."""
+    from relight import material_maps
+    from relight.envmap import EnvMap
+
+    mesh = uv_sphere(50.0, 8, 16)
+    surf = stage.texel_samples(mesh, 8)
+    maps = material_maps(surf, 0.5, 0.04, 0.3)
+    env = EnvMap(jnp.asarray(np.random.default_rng(seed).uniform(0.1, 2.0, (8, 16, 3)), jnp.float32))
+    return mesh, surf, maps, env, np.asarray(surf.normal)
+
+
 def merge(*meshes, uv_of=0):
     """Concatenate meshes; only mesh ``uv_of`` keeps its UVs (others get degenerate UVs)."""
     verts, faces, normals, uvs, off = [], [], [], [], 0

@@ -10,22 +10,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import relight
 import stage
 from relight import render
-from relight.envmap import EnvMap, rotation_matrix
-from tests.scenes import uv_sphere
+from relight.envmap import rotation_matrix
+from tests.scenes import small_render_scene
 
 RENDER = Path(render.__file__).parent
 
 
 @pytest.fixture(scope="module")
 def small():
-    mesh = uv_sphere(50.0, 8, 16)
-    surf = stage.texel_samples(mesh, 8)
-    maps = relight.material_maps(surf, 0.5, 0.04, 0.3)
-    env = EnvMap(jnp.asarray(np.random.default_rng(3).uniform(0.1, 2.0, (8, 16, 3)), jnp.float32))
-    return mesh, surf, maps, env, np.asarray(surf.normal)
+    return small_render_scene(3)
 
 
 def test_prepare_geometry_shade_is_render_samples(small):

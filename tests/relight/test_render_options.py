@@ -3,25 +3,19 @@ renders as the string spellings, their defaults are DEFAULTS, and bad
 settings are refused when the object is built."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import relight
 import stage
 from relight import render
-from relight.envmap import EnvMap
 from tests.helpers import REFUSED
-from tests.scenes import uv_sphere
+from tests.scenes import small_render_scene
 
 
 @pytest.fixture(scope="module")
 def small():
-    mesh = uv_sphere(50.0, 8, 16)
-    surf = stage.texel_samples(mesh, 8)
-    maps = relight.material_maps(surf, 0.5, 0.04, 0.3)
-    env = EnvMap(jnp.asarray(np.random.default_rng(2).uniform(0.1, 2.0, (8, 16, 3)), jnp.float32))
-    return mesh, surf, maps, env, np.asarray(surf.normal)
+    return small_render_scene(2)
 
 
 def test_objects_render_what_the_strings_render(small):
