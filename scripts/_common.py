@@ -79,16 +79,6 @@ def parser(doc: str | None, **kw) -> argparse.ArgumentParser:
     return argparse.ArgumentParser(description=(doc or "").split("\n\n")[0], **kw)
 
 
-def pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend (scripts write files, never open windows)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def save_figure(fig, path: Path, dpi: int = 110) -> Path:
     """Write ``fig`` to ``path`` atomically (a temporary file, then a rename: never a half-written figure)."""
     path = Path(path)
