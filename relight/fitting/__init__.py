@@ -3,7 +3,11 @@
 ``RESULTS``), the solvers, the photometric-stereo start, the per-rung model and
 its structured Jacobian, the model ladder, the subsurface fit (per region
 or per texel, with its own ladder) and the fit to pattern captures
-(``fit_patterns``). See docs/fit.md."""
+(``fit_patterns``); for inspecting and benchmarking the per-sample problems:
+the packed ``observations``, the parameter ``Layout``, the start
+(``start_parameters``), the model (``predict_radiance``,
+``residual_and_jacobian``), a round of the solve (``solve_samples``) and the
+per-texel subsurface data (``subsurface_texel_data``). See docs/fit.md."""
 
 from ._driver import LOSSES as LOSSES
 from ._driver import fit as fit
@@ -13,6 +17,8 @@ from ._folder import fit_folder as fit_folder
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
 from ._lm import NormalLevenbergMarquardt as NormalLevenbergMarquardt
+from ._model import Layout as Layout
+from ._model import residual_and_jacobian as residual_and_jacobian
 from ._options import FitOptions as FitOptions
 from ._parts import PartsFingerprintError as PartsFingerprintError
 from ._parts import PartsIncompleteError as PartsIncompleteError
@@ -20,6 +26,13 @@ from ._parts import fit_parts as fit_parts
 from ._parts import merge_parts as merge_parts
 from ._patterns import MIN_PATTERN_OBSERVATIONS as MIN_PATTERN_OBSERVATIONS
 from ._patterns import fit_patterns as fit_patterns
+from ._problem import Observations as Observations
+from ._problem import SubsurfaceTexelData as SubsurfaceTexelData
+from ._problem import observations as observations
+from ._problem import predict_radiance as predict_radiance
+from ._problem import solve_samples as solve_samples
+from ._problem import start_parameters as start_parameters
+from ._problem import subsurface_texel_data as subsurface_texel_data
 from ._report import ERROR_ROWS as ERROR_ROWS
 from ._report import angular_error_deg as angular_error_deg
 from ._report import fit_report as fit_report

@@ -48,8 +48,16 @@ from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Static parameter layout of one rung: ``model`` (index into MODELS),
-    whether the normal is fitted, and the roughness floor of the fit."""
+    """The static parameter layout of one rung: which entries the unconstrained
+    vector u of a sample holds (``names``, ``size``) and how they map to the
+    physical parameters (the module docstring's table).
+
+    Args:
+        model: the rung, an index into ``relight.MODELS`` (``relight.materials.LAMBERT``,
+            ``BLINN_PHONG``, ``GGX`` or ``GGX_ANISO``).
+        normals: whether the shading normal is fitted (two entries, the (a, b, 1) chart).
+        alpha_floor: the smallest roughness the fit allows, in (0, 1) (``relight.fitting.rig_alpha_floor``).
+    """
 
     model: int
     normals: bool
@@ -237,12 +245,34 @@ def _shading_cm(q, lay: Layout, wi, wo):
 
 
 def residual_and_jacobian(u, obs, sw, wi, wo, irr, lay: Layout, c):
-    """Robust residual r [3N] = robust(sw (predict - obs), c) and its Jacobian
-    J [3N, size] with respect to u, for one sample with component-major
-    obs, sw, irr [3, N] and wi, wo [3, N] (surface frame); also the raw
-    prediction [3, N]. pred_c = (rho_c / pi + lobe) cos_i irr_c, so
-    d pred_c / d u_c (diffuse) is closed-form and only the lobe and cos_i
-    carry forward-mode tangents (one batched JVP over u[3:])."""
+    """The solver's residual and its Jacobian for one sample: the fitter's fast path.
+
+    r = robust(sw (pred - obs), c) with pred the model of :func:`predict`
+    (the same ``brdf`` kernels, component-major so XLA vectorises over the
+    observations) and robust the square-rooted Cauchy residual (:func:`robust`).
+    pred_c = (rho_c / pi + lobe) cos_i irr_c, so the diffuse columns of J are
+    in closed form and only the lobe and cos_i carry forward-mode tangents
+    (one batched JVP over u[3:]): several times cheaper than ``jax.jacfwd``.
+
+    Args:
+        u: [size] the sample's unconstrained parameters (``lay.names``).
+        obs: [3, N] observed radiance, component-major (channel, observation).
+        sw: [3, N] square root of each observation's weight (0: padding).
+        wi, wo: [3, N] unit directions to the light and the camera in the
+            sample's surface frame (rows x, y, z; z = the surface normal).
+        irr: [3, N] irradiance at normal incidence.
+        lay: the rung's :class:`Layout`.
+        c: the Cauchy scale in radiance units, or None for plain least squares.
+
+    Returns:
+        (r [3N], J [3N, size] = dr/du, pred [3, N] the raw prediction).
+
+    References:
+        Walter et al. 2007, "Microfacet models for refraction through rough
+        surfaces", eqs. 33-34 (GGX D and separable Smith G1); Schlick 1994
+        (Fresnel); Triggs et al. 2000, "Bundle adjustment -- a modern
+        synthesis" (the square-rooted robust residual).
+    """
     rho = jax.nn.sigmoid(u[:3])
     q = u[3:]
     k = q.shape[0]

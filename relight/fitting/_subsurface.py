@@ -74,6 +74,16 @@ def _terms(capture, surface, fitted: Fit, eta):
     return np.stack(y), mask, E, np.stack(wo_v), np.stack(lam)
 
 
+def _reduced(y, valid, E, wo, eta, dt):
+    """The texel fit's data reduced over views (``_subsurface_texel.reduce_views``) and each texel's
+    irradiance unit (``_subsurface_texel.irradiance_unit``), from :func:`_terms`' y, validity, E and wo."""
+    # The outgoing factor F_t(cos_o) / pi per view and sample: the views reduce exactly (_subsurface_texel).
+    f_out = np.asarray(stage.subsurface_exitance(jnp.ones(wo.shape[:2] + (1,), dt), jnp.asarray(wo, dt), eta),
+                       np.float64)[..., 0]
+    data = _tx.reduce_views(y, valid, f_out)
+    return data, _tx.irradiance_unit(E, data)
+
+
 def _region_search(y, vm, E, wo, op, labels, R, lo, hi, grid, refine, iterations, search, final, A0, bar, eta):
     """The per-region mean free path: a log grid then golden-section refinement
     per (region, channel) on the ``search`` lights, alternating with the
@@ -284,11 +294,7 @@ def fit_subsurface(capture: stage.Capture, surface: stage.Surface, fitted: Fit, 
                                              max_neighbours=max_neighbours)
     valid = mask
     vm = valid[..., None].astype(np.float64)  # [V, L, P, 1]
-    # The outgoing factor F_t(cos_o) / pi per view and sample: the views reduce exactly (_subsurface_texel).
-    f_out = np.asarray(stage.subsurface_exitance(jnp.ones(wo.shape[:2] + (1,), dt), jnp.asarray(wo, dt), eta),
-                       np.float64)[..., 0]
-    data = _tx.reduce_views(y, valid, f_out)
-    unit = _tx.irradiance_unit(E, data)
+    data, unit = _reduced(y, valid, E, wo, eta, dt)
     geo = _tx.Geometry.of(op, dt)
     wo_b = jnp.asarray(wo)[:, None]  # [V, 1, P, 3] against the lights
     A_start = np.clip(np.asarray(fitted.rho_d, np.float64), 0.01, 1.0)
