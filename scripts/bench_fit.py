@@ -30,8 +30,8 @@ difference Jacobian), one call per texel, same objective (the same forward
 model written in numpy: Lambert + GGX with separable Smith G1, Schlick F,
 (a, b, 1) normal chart, sigmoid transforms, the same square-rooted Cauchy
 residual with the same scale), the same start (relight's photometric-stereo +
-roughness-grid start, computed through ``relight.fitting._init`` under JAX), the
-same valid observations, on a random subset of ``--scipy-texels`` of the
+roughness-grid start, ``relight.fitting.start_parameters``, under JAX), the
+same valid observations (``relight.fitting.observations``), on a random subset of ``--scipy-texels`` of the
 texels. Its throughput is that subset's texels / seconds. Accuracies
 (median relative albedo and roughness error, median normal angle error) are
 reported for ours on all texels and for both on the common subset.
@@ -47,7 +47,6 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, parser, sphere_surface, tilt, truth
 
@@ -65,7 +64,7 @@ def np_predict(u, wi, wo, irr, floor):
     al = floor + (1.0 - floor) * sig(u[4])
     n = np.array([u[5], u[6], 1.0])
     n /= np.linalg.norm(n)
-    # Fitted frame: surface tangent (1,0,0) projected off n, b = n x t (relight.fitting._model.frame, phi = 0).
+    # Fitted frame: surface tangent (1,0,0) projected off n, b = n x t (relight's fitted frame, phi = 0).
     t = np.array([1.0, 0.0, 0.0]) - n[0] * n
     t /= np.linalg.norm(t)
     b = np.cross(n, t)
@@ -99,17 +98,11 @@ def np_residual(u, obs, wi, wo, irr, floor, c):
 
 
 def packed_data(capture, surface, lay):
-    """relight's per-sample observation arrays and its start u0 (through
-    relight.fitting._observations and relight.fitting._solvers)."""
-    from relight.fitting import _observations as _obs
-    from relight.fitting import _solvers as _fit
-
-    n_valid = np.asarray(jnp.sum(capture.mask, axis=(0, 1)))
-    n_keep = int(-(-max(int(n_valid.max()), 1) // 32) * 32)
-    source = relight.io.capture_source(capture)
-    obs, w, wi, wo, irr, _ = _obs._observations(source, surface, 0, surface.num_samples, n_keep, np.float32)
-    u0 = np.asarray(_fit._start_chunk(*(jnp.asarray(x) for x in (obs, w, wi, wo, irr)), lay))
-    return obs, w, wi, wo, irr, u0
+    """relight's per-sample observation arrays and its start u0 (relight.fitting.observations and
+    relight.fitting.start_parameters)."""
+    obs = relight.fitting.observations(capture, surface, dtype=np.float32)
+    u0 = np.asarray(relight.fitting.start_parameters(obs, lay))
+    return obs.radiance, obs.weight, obs.wi, obs.wo, obs.irradiance, u0
 
 
 def scipy_fit(idx, data, floor, cauchy=0.1, method="lm"):
@@ -214,11 +207,10 @@ def main(argv=None):
             best = row
 
     # scipy on a random subset, same start, same objective.
-    from relight.fitting._model import Layout
     from relight.materials import GGX
 
     floor = relight.rig_alpha_floor(rig)
-    lay = Layout(GGX, True, floor)
+    lay = relight.fitting.Layout(GGX, True, floor)
     data = packed_data(cap, geo, lay)
     rng = np.random.default_rng(5)
     idx = np.sort(rng.choice(args.texels, min(args.scipy_texels, args.texels), replace=False))

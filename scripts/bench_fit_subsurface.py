@@ -14,10 +14,11 @@ the time of a warm call (a first call compiles), texels/s, and the median
 relative mfp error over all texels and over the identifiable ones (the texel
 fit's 1-sigma of ln mfp < 0.25). Baseline: ``scipy.optimize.least_squares``
 (trust-region reflective, bounds on ln mfp and albedo) per texel and channel
-on the same reduced data, residual and prior, on ``--scipy-texels`` texels;
-its texels/s and its agreement with the vmapped LM there. Last, the
-alternative data reduction: the per-chunk Gram matrix G^T diag(a) G against
-the gathered irradiance the LM uses.
+on the same reduced data (``relight.fitting.subsurface_texel_data``), residual
+and prior, on ``--scipy-texels`` texels; its texels/s and its agreement with
+the vmapped LM there. Last, the alternative data reduction: the Gram matrix
+G^T diag(a) G of a chunk of ``--chunk`` texels against the gathered irradiance
+G the LM uses (its size, and the time to form it from G).
 """
 
 from __future__ import annotations
@@ -41,8 +42,6 @@ import brdf  # noqa: E402
 import relight  # noqa: E402
 import skin_bssrdf  # noqa: E402
 import stage  # noqa: E402
-from relight.fitting import _subsurface as sss  # noqa: E402
-from relight.fitting import _subsurface_texel as tx  # noqa: E402
 
 RADIUS_MM = 5.0
 
@@ -80,20 +79,11 @@ def timed(fn, repeat=1):
     return out, (time.perf_counter() - t) / repeat
 
 
-def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=skin_bssrdf.SKIN_ETA):
+def scipy_texels(surface, cap, fitted, region, texels, op, lo=0.05, hi=8.0):
     """(ln mfp [n, C], seconds): scipy least_squares per texel and channel, the LM's residual and prior."""
-    y, valid, E, wo, _ = sss._terms(cap, surface, fitted, eta)
-    op = skin_bssrdf.DiffusionOperator.build(np.asarray(surface.position), np.asarray(surface.area), RADIUS_MM)
-    dt = jnp.result_type(float)
-    f_out = np.asarray(stage.subsurface_exitance(jnp.ones(wo.shape[:2] + (1,), dt), jnp.asarray(wo, dt), eta))[..., 0]
-    data = tx.reduce_views(y, valid, f_out)
-    unit = tx.irradiance_unit(E, data)
-    geo = tx.Geometry.of(op, jnp.result_type(float))
-    lights = np.arange(E.shape[0])
-    a, ybar, c0, cnt = tx._normalised(data, lights, unit, texels)
-    Gs, Gn = (np.asarray(x) for x in tx._gather(jnp.asarray(texels), jnp.asarray(E), geo.index, geo.weight,
-                                                   jnp.asarray(unit[texels])))
-    r_nb, rho = np.asarray(geo.distance)[texels], np.asarray(geo.rho)[texels]
+    td = relight.fitting.subsurface_texel_data(cap, surface, fitted, op, texels)
+    a, ybar, c0, cnt = td.weight, td.exitance, td.constant, td.count
+    Gs, Gn, r_nb, rho = td.self_irradiance, td.neighbour_irradiance, td.distance, td.self_radius
     prior = np.log(np.asarray(region.mfp))[texels]
     A0 = np.asarray(region.rho_d)[texels]
     out = np.zeros((len(texels), 3))
@@ -102,7 +92,7 @@ def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=skin
         n = float(np.sum(cnt[i]))
         for c in range(3):
             sw = np.sqrt(a[i])
-            floor = tx._REL_NOISE_FLOOR ** 2 * np.sum(a[i] * ybar[i, :, c] ** 2 + c0[i, :, c]) / max(n, 1.0) + 1e-30
+            floor = td.noise_floor[i, c]
 
             def res(x, i=i, c=c, sw=sw, n=n, floor=floor):
                 ln_m, A = x
@@ -113,12 +103,12 @@ def scipy_texels(surface, cap, fitted, region, texels, lo=0.05, hi=8.0, eta=skin
                 S = Gs[i, c] * ws + Gn[i, c] @ w
                 rd = sw * (A * S - ybar[i, :, c])
                 s2 = (np.sum(rd * rd) + np.sum(c0[i, :, c])) / max(n - 2.0, 1.0) + floor
-                return np.concatenate([rd, [np.sqrt(s2) * (ln_m - prior[i, c]) / tx.PRIOR_SIGMA_LN_MFP]])
+                return np.concatenate([rd, [np.sqrt(s2) * (ln_m - prior[i, c]) / relight.fitting.PRIOR_SIGMA_LN_MFP]])
 
             x0 = [np.clip(prior[i, c], np.log(lo) + 1e-6, np.log(hi) - 1e-6), np.clip(A0[i, c], 1e-3, 1 - 1e-3)]
             sol = least_squares(res, x0, bounds=([np.log(lo), 0.0], [np.log(hi), 1.0]), method="trf", xtol=1e-10)
             out[i, c] = sol.x[0]
-    return out, time.perf_counter() - t, (data, unit, geo, E)
+    return out, time.perf_counter() - t
 
 
 def main(argv=None):
@@ -126,6 +116,9 @@ def main(argv=None):
     ap.add_argument("--texel-res", type=int, default=32)
     ap.add_argument("--dome", type=int, default=1)
     ap.add_argument("--scipy-texels", type=int, default=40)
+    ap.add_argument("--chunk", type=int, default=128,
+                    help="texels of the gathered-irradiance / Gram comparison (the texel solve's chunk on the "
+                         "default scene)")
     ap.add_argument("--float32", action="store_true", help="run JAX in float32 (x64 off)")
     ap.add_argument("--json", default=str(Path(__file__).resolve().parent.parent / "docs" / "figures" /
                                           "fit_subsurface_bench.json"),
@@ -161,7 +154,7 @@ def main(argv=None):
         rows.append((name, t, P / t, np.median(rel), np.median(rel[ident]), np.median(rel[truth >= 1.5])))
     rng = np.random.default_rng(1)
     sub = np.sort(rng.choice(P, min(args.scipy_texels, P), replace=False))
-    ln_sp, t_sp, (data, unit, geo, E) = scipy_texels(surface, cap, fitted, region, sub)
+    ln_sp, t_sp = scipy_texels(surface, cap, fitted, region, sub, op)
     rel_sp = np.abs(np.exp(ln_sp) - truth[sub]) / truth[sub]
     rows.append((f"scipy least_squares per texel-channel ({len(sub)} texels; errors over them)", t_sp, len(sub) / t_sp,
                  np.median(rel_sp), np.median(rel_sp[ident[sub]]), np.median(rel_sp[truth[sub] >= 1.5])))
@@ -185,26 +178,17 @@ def main(argv=None):
     print(f"\nidentifiable texel-channels: {ident.mean():.1%} (per channel {np.round(ident.mean(0), 3)}); "
           f"scipy vs the optx solve on the subset: median |d ln mfp| {np.median(agree):.2e}, "
           f"over identifiable {np.median(agree[ident[sub]]):.2e}")
-    # The data reduction: gathered irradiance [n, C, L, K] (what the LM keeps) against the Gram [n, C, K+1, K+1].
-    K = geo.index.shape[1]
-    n = tx.chunk_size(P, L, K, 3)
-    idx = jnp.arange(n)
-    Ej = jnp.asarray(E)
-    uj = jnp.asarray(unit[:n])
-    gather = jax.jit(lambda i: tx._gather(i, Ej, geo.index, geo.weight, uj))
-    aj = jnp.asarray(data.a[:n] / 1.0)
-
-    @jax.jit
-    def gram(i):
-        Gs, Gn = tx._gather(i, Ej, geo.index, geo.weight, uj)
-        G = jnp.concatenate([Gs[..., None], Gn], -1)  # [n, C, L, K + 1]
-        return jnp.einsum("ncla,nl,nclb->ncab", G, aj, G)
-
-    (_, t_g) = timed(lambda: jax.block_until_ready(gather(idx)), 3)
-    (_, t_h) = timed(lambda: jax.block_until_ready(gram(idx)), 3)
+    # The data reduction: gathered irradiance [n, C, L, K + 1] (what the LM keeps) against the Gram [n, C, K+1, K+1].
+    K = op.index.shape[1]
+    n = min(args.chunk, P)
+    td = relight.fitting.subsurface_texel_data(cap, surface, fitted, op, np.arange(n))
+    G = jnp.concatenate([jnp.asarray(td.self_irradiance)[..., None], jnp.asarray(td.neighbour_irradiance)], -1)
+    aj = jnp.asarray(td.weight)
+    gram = jax.jit(lambda G, a: jnp.einsum("ncla,nl,nclb->ncab", G, a, G))
+    (_, t_h) = timed(lambda: jax.block_until_ready(gram(G, aj)), 3)
     b = np.dtype(jnp.result_type(float)).itemsize
-    print(f"\ndata per chunk of {n} texels: gathered irradiance {n * 3 * L * (K + 1) * b / 2**20:.1f} MiB in "
-          f"{t_g * 1e3:.1f} ms; Gram G^T diag(a) G {n * 3 * (K + 1) ** 2 * b / 2**20:.1f} MiB in {t_h * 1e3:.1f} ms "
+    print(f"\ndata per chunk of {n} texels: gathered irradiance {n * 3 * L * (K + 1) * b / 2**20:.1f} MiB; "
+          f"Gram G^T diag(a) G {n * 3 * (K + 1) ** 2 * b / 2**20:.1f} MiB, {t_h * 1e3:.1f} ms more to form from it "
           f"(and an LM on it would need its Cholesky factor, K^3 per texel-channel)")
     print(f"total {time.perf_counter() - t0:.1f} s")
 

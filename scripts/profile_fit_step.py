@@ -1,11 +1,12 @@
 """Where a fit's time goes: per-texel cost of one forward evaluation of the
-reference model (``relight.fitting._model.predict``: ``stage.reflected_radiance``
+reference model (``relight.fitting.predict_radiance``: ``stage.reflected_radiance``
 of brdf Modules), its forward-mode Jacobian, the solver's structured residual +
-Jacobian (``_model.residual_and_jacobian``, brdf's component-major kernels) with
-the normal equations it feeds, and Optimistix Levenberg-Marquardt at 1 and 20
-steps (per texel and per texel-step), for Lambert + GGX + normal on 192
-observations x RGB (one chunk of 256 texels, float32, compile excluded; the
-best of ``--repeat`` timings, so a loaded machine reads less noisy).
+Jacobian (``relight.fitting.residual_and_jacobian``, brdf's component-major
+kernels) with the normal equations it feeds, and Optimistix Levenberg-Marquardt
+(``relight.fitting.solve_samples``) at 1 and 20 steps (per texel and per
+texel-step), for Lambert + GGX + normal on 192 observations x RGB (one chunk
+of 256 texels, float32, compile excluded; the best of ``--repeat`` timings,
+so a loaded machine reads less noisy).
 
     python scripts/profile_fit_step.py [--repeat 5]
 """
@@ -19,10 +20,14 @@ import numpy as np
 import optimistix as optx
 from _common import parser
 
-from relight.fitting import NormalLevenbergMarquardt
-from relight.fitting import _model as _fit_model
-from relight.fitting import _solvers as _fit
-from relight.fitting._model import Layout
+from relight.fitting import (
+    Layout,
+    NormalLevenbergMarquardt,
+    Observations,
+    predict_radiance,
+    residual_and_jacobian,
+    solve_samples,
+)
 from relight.materials import GGX
 
 PC, N = 256, 192  # texels per chunk, observations per texel
@@ -59,10 +64,10 @@ def main():
     u0 = jnp.zeros((PC, lay.size), jnp.float32)
 
     def predict(u, a, b, c):
-        return _fit_model.predict(_fit_model.unpack(u, lay), lay, a, b, c)
+        return predict_radiance(u, lay, a, b, c)
 
     def normal_eq(u, *a):  # what a Gauss-Newton step consumes: J^T J and J^T r
-        r, J, _ = _fit_model.residual_and_jacobian(u, *a, lay, 0.02)
+        r, J, _ = residual_and_jacobian(u, *a, lay, 0.02)
         return J.T @ J, J.T @ r
 
     def cm(x):  # component-major [Pc, 3, N]
@@ -75,17 +80,17 @@ def main():
     for name, fn, a in rows:
         t, _ = _best(fn, a, args.repeat)
         print(f"{name}: {t / PC * 1e6:.1f} us/texel")
-    data = [jnp.asarray(x) for x in (obs, w, 0 * w, wi, wo, irr)]
+    data = Observations(*(jnp.asarray(x) for x in (obs, w, wi, wo, irr)))
     # Tolerances that never stop a solve early, so every texel takes max_steps.
     solvers = (("NormalLevenbergMarquardt", NormalLevenbergMarquardt(rtol=1e-12, atol=1e-12)),
                ("optx.LevenbergMarquardt", optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12,
                                                                    linear_solver=lx.Normal(lx.Cholesky()))))
     for name, solver in solvers:
         for ms in (1, 20):
-            def solve(u, *a, ms=ms, solver=solver):
-                return _fit._solve_chunk(u, *a, lay=lay, solver=solver, max_steps=ms, cauchy=0.1)
+            def solve(u, obs, ms=ms, solver=solver):
+                return solve_samples(u, obs, lay, solver=solver, max_steps=ms, cauchy=0.1)
 
-            t, out = _best(solve, (u0, *data), max(1, args.repeat // 2))
+            t, out = _best(solve, (u0, data), max(1, args.repeat // 2))
             steps = float(np.mean(np.asarray(out[3])))
             print(f"{name} max_steps {ms}: {t / PC * 1e3:.3f} ms/texel, {t / PC / steps * 1e6:.1f} "
                   f"us/texel-step (mean steps {steps:.1f}, final rms {float(np.mean(np.asarray(out[1]))):.5f})")
