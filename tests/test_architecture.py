@@ -362,6 +362,77 @@ def test_the_private_import_finder_finds_them():
     assert found == ["relight.io._resultset.x", "stage._rig", "relight.render._private_helper"]
 
 
+# (f) The scripts are users of the library (issue 26): they import its public names and scripts/_common.py (a
+# script runs as `python scripts/x.py`, and Python puts the script's folder first on sys.path), never a private
+# module or name of brdf, skin_bssrdf, stage or relight, and they do not edit sys.path.
+SCRIPTS = sorted((ROOT / "scripts").glob("*.py"))
+SYS_PATH_EDITS = {"insert", "append", "extend", "remove", "pop", "clear", "reverse", "sort"}  # list's mutators
+
+
+def _private_part(part: str) -> bool:
+    """A private name: a leading underscore, but not a dunder (``__init__``, ``__version__``)."""
+    return part.startswith("_") and not (part.startswith("__") and part.endswith("__"))
+
+
+def _script_breaches(path: Path, source: str | None = None) -> list[str]:
+    """`path:line: what` for each private name of our packages that a script imports and each edit of
+    ``sys.path`` (``source``: the script's text, default its file's)."""
+    rel = path.relative_to(ROOT).as_posix()
+    tree = ast.parse(path.read_text(encoding="utf-8") if source is None else source)
+    # The names `sys` is bound to (`import sys`, `import sys as s`): sys.path edits through any of them count.
+    sys_names = {a.asname or a.name for node in ast.walk(tree) if isinstance(node, ast.Import)
+                 for a in node.names if a.name == "sys"}
+
+    def is_sys_path(node) -> bool:
+        return (isinstance(node, ast.Attribute) and node.attr == "path" and isinstance(node.value, ast.Name)
+                and node.value.id in sys_names)
+
+    out = []
+    for node in ast.walk(tree):
+        names, edit = [], False
+        if isinstance(node, ast.ImportFrom):
+            stem = "." * node.level + (node.module or "")
+            names = [f"{stem}.{a.name}" for a in node.names]
+            edit = stem == "sys" and any(a.name == "path" for a in node.names)  # `from sys import path`
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            edit = is_sys_path(node.func.value) and node.func.attr in SYS_PATH_EDITS
+        elif isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign, ast.Delete)):
+            targets = node.targets if isinstance(node, (ast.Assign, ast.Delete)) else [node.target]
+            edit = any(is_sys_path(t.value if isinstance(t, ast.Subscript) else t) for t in targets)
+        for name in names:
+            if _top(name) in PACKAGES and any(_private_part(part) for part in name.split(".")):
+                out.append(f"{rel}:{node.lineno}: imports {name}")
+        if edit:
+            out.append(f"{rel}:{node.lineno}: edits sys.path")
+    return out
+
+
+def test_the_scripts_are_found():
+    assert len(SCRIPTS) > 10 and ROOT / "scripts" / "_common.py" in SCRIPTS
+
+
+def test_scripts_use_only_the_public_api_and_leave_sys_path_alone():
+    bad = [line for path in SCRIPTS for line in _script_breaches(path)]
+    why = "scripts import public library names and _common only, and do not edit sys.path"
+    assert not bad, f"{why}; found:\n" + "\n".join(bad)
+
+
+def test_the_script_checker_finds_breaches():
+    source = ("import sys\nimport sys as system\nimport relight.fitting._model\n"
+              "from relight.fitting import _solvers\nfrom relight.fitting._model import Layout\n"
+              "from brdf import _nbrdf as nb\nfrom stage import __version__\nfrom relight.fitting import fit, Layout\n"
+              "from _common import parser, _private_helper\nimport numpy._core\n"
+              "sys.path.insert(0, 'x')\nsystem.path.append('y')\nsys.path[:0] = ['z']\nsys.path += ['w']\n"
+              "sys.path = []\nfrom sys import path\nprint(sys.path)\nsys.argv.append('a')\n")
+    found = [line.split(":", 2)[2].strip() for line in _script_breaches(ROOT / "scripts" / "x.py", source)]
+    assert sorted(found) == sorted([
+        "imports relight.fitting._model", "imports relight.fitting._solvers", "imports relight.fitting._model.Layout",
+        "imports brdf._nbrdf", *["edits sys.path"] * 6,
+    ])
+
+
 def _string_dispatch(path: Path) -> list[str]:
     rel = path.relative_to(ROOT).as_posix()
     out = []
