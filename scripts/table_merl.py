@@ -34,7 +34,7 @@ Also per material, the NBRDF's property checks (docs/measured_brdf.md):
 the share of raw network outputs below 0 (clamped), reciprocity asymmetry
 |f(wi, wo) - f(wo, wi)| (median and 99th percentile of log(1 + f) differences,
 and relative where max(f) > 0.01 / sr), and the largest directional albedo over
-8 view directions (half-vector quadrature, ``brdf._nbrdf.directional_albedo_half``).
+8 view directions (half-vector quadrature, ``brdf.directional_albedo_half``).
 
 Writes docs/figures/merl_table.md (sorted by the best rung's reflectance error),
 docs/figures/merl_checks.md and docs/figures/merl_errors.png (``--suffix`` appended to
@@ -85,7 +85,7 @@ def _simulate(surface, rig, cam, material):
 
 @eqx.filter_jit
 def _pairs_eval(m, wi, wo):
-    enc = brdf._nbrdf.nbrdf_encoding(wi, wo)
+    enc = brdf.nbrdf_encoding(wi, wo)
     return m(wi, wo), m(wo, wi), m.network(enc)
 
 
@@ -120,7 +120,7 @@ def main(argv=None):
         sys.exit(f"--fits: none of {FITS}")
     names = [n for n in args.materials.split(",") if n] or nbrdf_names()
     if not names:
-        sys.exit(f"no NBRDF networks found in {brdf._nbrdf.nbrdf_folder()}")
+        sys.exit(f"no NBRDF networks found in {brdf.nbrdf_folder()}")
     rig = stage.light_stage_x()
     cam = front_camera()
     surface = sphere_surface(args.texels, seed=args.seed)
