@@ -45,8 +45,8 @@ THIRD_PARTY = {
 # (exporters) and simulation (simulated captures written whole) io, fitting and render everything below them
 # but not each other, patterns (learned lighting) and view (the results viewer) everything below them but not
 # each other, demo (relight demo as one call) everything below it, and cli all.
-LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "export": 2, "simulation": 2, "fitting": 3,
-         "render": 3, "patterns": 4, "view": 4, "demo": 5, "cli": 6}
+LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "evaluation": 2, "export": 2,
+         "simulation": 2, "fitting": 3, "render": 3, "patterns": 4, "view": 4, "demo": 5, "cli": 6}
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,12 @@ from ._texture_set import write_texture_set_files as write_texture_set_files
 from ._textures import HEAD_SKIN_FILES as HEAD_SKIN_FILES
 from ._textures import head_skin_textures as head_skin_textures
 from ._textures import read_texture as read_texture
+from ._yaleb import YALEB_DARK as YALEB_DARK
+from ._yaleb import YALEB_INTENSITY as YALEB_INTENSITY
+from ._yaleb import is_yaleb_folder as is_yaleb_folder
+from ._yaleb import read_pgm as read_pgm
+from ._yaleb import read_yaleb as read_yaleb
+from ._yaleb import yaleb_direction as yaleb_direction
 
 __all__ = [
     "ArraySource",
@@ -149,6 +155,12 @@ __all__ = [
     "read_capture",
     "diligent_capture",
     "read_diligent",
+    "YALEB_DARK",
+    "YALEB_INTENSITY",
+    "is_yaleb_folder",
+    "read_pgm",
+    "read_yaleb",
+    "yaleb_direction",
     "read_exr",
     "read_exr_channels",
     "read_exr_parts",
