@@ -24,46 +24,6 @@ def angular_error_deg(n, gt):
     return np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
 
 
-def lambert_baseline(d, lights):
-    """The benchmark's baseline: grey Lambertian least squares over ``lights``
-    (normal), plus per-channel albedo for predicting images."""
-    I = d.images[lights] / d.light_intensities[lights][:, None, None, :]
-    grey = np.minimum(0.2989 * I[..., 0] + 0.5870 * I[..., 1] + 0.1140 * I[..., 2], 1.0)
-    L = d.light_directions[lights].astype(np.float64)
-    b = np.linalg.lstsq(L, grey[:, d.mask], rcond=None)[0].T
-    n = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
-    shade = np.maximum(L @ n.T, 0.0)  # [L, P]
-    Ic = I[:, d.mask, :]  # [L, P, 3]
-    albedo = np.sum(shade[..., None] * Ic, 0) / np.maximum(np.sum(shade**2, 0)[:, None], 1e-12)
-    return n, albedo
-
-
-def predict_lambert(n, albedo, d, lights):
-    L = d.light_directions[lights].astype(np.float64)
-    return np.maximum(L @ n.T, 0.0)[..., None] * albedo[None] * d.light_intensities[lights][:, None, :]
-
-
-def predict_fit(f, capture, surface):
-    """Radiance [L, P, 3] of a Fit under the capture's rig and view."""
-    import jax.numpy as jnp
-
-    import stage
-
-    maps = f.maps(surface)
-    fr = maps.frame(surface)
-    wi, wo, irr = stage.shading_directions(fr, capture.rig, capture.cameras[0])
-    m = maps.brdf(include_diffuse=True)
-    out = []
-    for l in range(wi.shape[0]):
-        out.append(np.asarray(m(wi[l], wo) * jnp.maximum(wi[l][:, 2:3], 0) * irr[l]))
-    return np.stack(out)
-
-
-def rel_rms(pred, obs, valid):
-    v = valid[..., None]
-    return float(np.sqrt(np.sum(v * (pred - obs) ** 2) / np.sum(v * obs**2)))
-
-
 def main(argv=None):
     ap = parser(__doc__)
     ap.add_argument("object_dir", type=Path)
@@ -76,6 +36,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     import relight
+    import relight.evaluation as ev
     from relight.io import diligent_capture, read_diligent
 
     d = read_diligent(a.object_dir)
@@ -94,7 +55,7 @@ def main(argv=None):
     held = every[3::6]
     train = np.setdiff1d(every, held)
 
-    n_base, _ = lambert_baseline(d, every)
+    n_base, _ = ev.lambert_least_squares(d, every)
     err_base = angular_error_deg(n_base, gt)
     capture, surface = diligent_capture(d)
     t0 = time.perf_counter()
@@ -104,16 +65,16 @@ def main(argv=None):
     err_fit = angular_error_deg(np.asarray(f.normal), gt)
 
     # Held-out lights: both fit on the 80 training lights, predict the 16.
-    n_tr, alb_tr = lambert_baseline(d, train)
+    n_tr, alb_tr = ev.lambert_least_squares(d, train)
     obs = d.images[held][:, d.mask, :]
     valid = np.all(obs < 0.995, -1) & (d.light_directions[held, 2] > 0)[:, None]
-    base_pred = predict_lambert(n_tr, alb_tr, d, held)
+    base_pred = ev.predict_lambert(n_tr, alb_tr, d, held)
     cap_tr, _ = diligent_capture(d, lights=train)
     f_tr = relight.fit(cap_tr, surface, model=a.model, normals=True, solver=a.solver,
                        options=relight.fitting.FitOptions(chunk=a.chunk, rounds=a.rounds))
     cap_h, _ = diligent_capture(d, lights=held)
-    fit_pred = predict_fit(f_tr, cap_h, surface)
-    e_base, e_fit = rel_rms(base_pred, obs, valid), rel_rms(fit_pred, obs, valid)
+    fit_pred = ev.predict_fit(f_tr, cap_h, surface)
+    e_base, e_fit = ev.relative_rms(base_pred, obs, valid), ev.relative_rms(fit_pred, obs, valid)
 
     report = {
         "object": name, "pixels": int(d.mask.sum()), "lights": n_lights, "model": a.model, "solver": a.solver,
