@@ -61,6 +61,52 @@ def _small_index_pages(request, monkeypatch):
         monkeypatch.setattr(module, "INDEX_SIZE", 32)
 
 
+# The demo both tests/relight/test_cli.py (its physics) and tests/relight/test_view.py (its index.html) check:
+# `relight demo` at 32^2 texels, 2 cameras, 48 px, built once for the run by demo_output.
+DEMO_ARGV = ["demo", "--resolution", "32", "--cameras", "2", "--image-size", "48", "--quiet"]
+
+
+@pytest.fixture(scope="session")
+def demo_output(tmp_path_factory):
+    """The folder of one ``relight demo`` (DEMO_ARGV) with its full index page (the commands' 12 frames at
+    128 px, as test_view checks it): built once per run and shared by test_cli.py and test_view.py, which
+    only read it. Under xdist the workers share it too: the first to ask builds it under a file lock in the
+    run's temporary folder, the other waits and reads it (a demo costs about two minutes of CPU)."""
+    from relight.cli import _flags, demo, main
+
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder, not the user's
+    out = root / "shared-demo"
+    with _locked(root / "shared-demo.lock"):
+        if not (out / "report.json").is_file():
+            with pytest.MonkeyPatch.context() as mp:  # the commands' own index page, whatever a test patched
+                mp.setattr(demo, "INDEX_FRAMES", _flags.INDEX_FRAMES)
+                mp.setattr(demo, "INDEX_SIZE", _flags.INDEX_SIZE)
+                assert main([*DEMO_ARGV, "--out", str(out)]) == 0
+    return out
+
+
+class _locked:
+    """An exclusive lock on ``path`` (fcntl; where there is none, no lock: each process builds its own)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:
+            self.file = None
+            return self
+        self.file = open(self.path, "w")
+        fcntl.flock(self.file, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc):
+        if self.file is not None:
+            self.file.close()  # closing releases the lock
+
+
 if importlib.util.find_spec("xdist") is not None:
 
     def pytest_xdist_make_scheduler(config, log):

@@ -5,9 +5,9 @@ folder's manifest; ``relight view`` rewrites it with a finer sweep; the sweep is
 relighting of each rotation; report.md is rendered with its markup escaped.
 
 One tiny output per command, made once for the module: simulate (the head at 12 x 12 texels under a 42-light
-dome, one 32 x 32 camera), fit (Gauss-Newton), render of the map set and a 4-frame turntable of the capture,
-and a demo at its smallest settings with two costs cut (the Light Stage X replaced by the 42-light dome, the
-ladder fit by one Lambert + per-region subsurface pass): its physics is tested in test_cli.py, its page here.
+dome, one 32 x 32 camera), fit (Gauss-Newton), render of the map set and a 4-frame turntable of the capture;
+the demo is the run's one (conftest's demo_output, 32 x 32 texels, 2 cameras), whose physics test_cli.py
+tests and whose page is tested here.
 The browser tests skip, saying why, where Chromium is absent (``.ci/run`` installs it)."""
 
 import html
@@ -30,26 +30,14 @@ needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium 
 
 
 @pytest.fixture(scope="module")
-def outputs(tmp_path_factory):
-    import relight.fitting
-    import stage
-
+def outputs(tmp_path_factory, demo_output):
     root = tmp_path_factory.mktemp("view")
     assert main(["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", str(SIZE),
                  "--out", str(root / "cap"), "-qq"]) == 0
     assert main(["fit", str(root / "cap"), "--out", str(root / "maps"), "--solver", "gn", "-qq"]) == 0
     assert main(["render", str(root / "maps"), "--out", str(root / "rend"), "-qq"]) == 0
     assert main(["render", str(root / "cap"), "--out", str(root / "turn"), "--frames", "4", "-qq"]) == 0
-    real = relight.fitting.fit_with_subsurface
-
-    def one_cheap_pass(capture, surface, **kw):
-        return real(capture, surface, **{**kw, "model": "lambert", "normals": False, "per": "region", "passes": 1})
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(relight.fitting, "fit_with_subsurface", one_cheap_pass)
-        mp.setattr(stage, "light_stage_x", lambda: stage.geodesic_dome(1))
-        assert main(["demo", "--out", str(root / "demo"), "--resolution", "16", "--cameras", "1", "--image-size",
-                     str(SIZE), "--passes", "1", "-qq"]) == 0
+    shutil.copytree(demo_output, root / "demo")  # a copy: the shared run's folder stays as the demo wrote it
     return root
 
 
