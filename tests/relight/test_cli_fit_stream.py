@@ -196,26 +196,11 @@ def _python(code, env_extra, timeout=300):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def test_two_devices_equal_one(captures, tmp_path):
-    cap, _, _ = captures
-    code = f"""
-        import json, jax
-        from relight.cli import main
-        n = len(jax.local_devices())
-        for d in ("1", "2"):
-            assert main(["fit", {str(cap)!r}, "--out", {str(tmp_path)!r} + "/d" + d, "--devices", d,
-                         "--quiet"]) == 0
-        print(json.dumps({{"devices": n}}))
-    """
-    got = _python(code, {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "RELIGHT_CACHE_DIR": "off"})
-    assert got["devices"] == 2
-    assert _report(tmp_path / "d2")["parts"]["devices"] == 2
-    _assert_maps(_maps(tmp_path / "d2"), _maps(tmp_path / "d1"), ATOL)
-
-
-# Runs `relight <argv>` in a fresh process and prints the persistent cache's event counts.
+# Runs `relight` in a fresh process once per (environment update, argv) in RUNS, in order, and prints the
+# device count and, per run, the persistent cache's event counts during that run.
 _COUNTED = """
-    import json, sys
+    import json, os
+    import jax
     import jax.monitoring as m
     counts = {}
     def on_event(name, **kw):
@@ -225,16 +210,51 @@ _COUNTED = """
     m.register_event_listener(on_event)
     m.register_event_duration_secs_listener(on_duration)
     from relight.cli import main
-    assert main(ARGV) == 0
-    key = lambda k: counts.get("/jax/compilation_cache/" + k, 0)
-    print(json.dumps({"hits": key("cache_hits"), "misses": key("cache_misses"),
-                      "requests": key("compile_requests_use_cache"),
-                      "compiles": counts.get("/jax/core/compile/backend_compile_duration", 0)}))
+    got = {"devices": len(jax.local_devices()), "runs": []}
+    for env, argv in RUNS:
+        os.environ.update(env)
+        before = dict(counts)
+        assert main(argv) == 0, argv
+        key = lambda k: counts.get("/jax/compilation_cache/" + k, 0) - before.get("/jax/compilation_cache/" + k, 0)
+        got["runs"].append({"hits": key("cache_hits"), "misses": key("cache_misses"),
+                            "requests": key("compile_requests_use_cache"),
+                            "compiles": counts.get("/jax/core/compile/backend_compile_duration", 0)
+                            - before.get("/jax/core/compile/backend_compile_duration", 0)})
+    print(json.dumps(got))
 """
 
 
+def _counted_runs(runs, env):
+    return _python(_COUNTED.replace("RUNS", repr(runs)), env)
+
+
 def _counted(argv, env):
-    return _python(_COUNTED.replace("ARGV", repr(argv)), env)
+    return _counted_runs([({}, argv)], env)["runs"][0]
+
+
+@pytest.fixture(scope="module")
+def two_devices(captures, tmp_path_factory):
+    """One fresh process (two host devices, the compilation cache off) fitting the capture twice: --devices 1
+    with the cache off by RELIGHT_CACHE_DIR=off, then --devices 2 with it off by --cache-dir, which beats
+    RELIGHT_CACHE_DIR (set to a folder for that run); XDG_CACHE_HOME (the default cache's parent) names a
+    folder too. The two runs compile different programs (one device, two), so each compiles. (root, the
+    subprocess's counts)."""
+    cap, _, _ = captures
+    root = tmp_path_factory.mktemp("devices")
+    fit = ["fit", str(cap), "--quiet"]
+    runs = [({}, [*fit, "--devices", "1", "--out", str(root / "d1")]),
+            ({"RELIGHT_CACHE_DIR": str(root / "named")}, ["--cache-dir", "off", *fit, "--devices", "2",
+                                                          "--out", str(root / "d2")])]
+    got = _counted_runs(runs, {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "RELIGHT_CACHE_DIR": "off",
+                               "XDG_CACHE_HOME": str(root / "xdg")})
+    return root, got
+
+
+def test_two_devices_equal_one(two_devices):
+    root, got = two_devices
+    assert got["devices"] == 2
+    assert _report(root / "d2")["parts"]["devices"] == 2
+    _assert_maps(_maps(root / "d2"), _maps(root / "d1"), ATOL)
 
 
 def test_compile_cache_is_written_then_hit(captures, tmp_path):
@@ -253,14 +273,11 @@ def test_compile_cache_is_written_then_hit(captures, tmp_path):
 
 
 @pytest.mark.parametrize("how", ["env", "flag"])
-def test_cache_off_writes_nothing(captures, tmp_path, how):
-    cap, _, _ = captures
-    xdg, named = tmp_path / "xdg", tmp_path / "named"
-    argv = ["fit", str(cap), "--out", str(tmp_path / "o"), "--model", "lambert", "--quiet"]
-    if how == "env":
-        got = _counted(argv, {"RELIGHT_CACHE_DIR": "off", "XDG_CACHE_HOME": str(xdg)})
-    else:  # --cache-dir beats RELIGHT_CACHE_DIR
-        got = _counted(["--cache-dir", "off", *argv], {"RELIGHT_CACHE_DIR": str(named), "XDG_CACHE_HOME": str(xdg)})
+def test_cache_off_writes_nothing(two_devices, how):
+    """The two_devices runs: RELIGHT_CACHE_DIR=off ("env"), and --cache-dir off beating RELIGHT_CACHE_DIR set
+    to a folder ("flag")."""
+    root, got = two_devices
+    run = got["runs"][["env", "flag"].index(how)]
     # JAX still asks (requests), but with no cache folder nothing is looked up (no miss) or found (no hit).
-    assert got["compiles"] > 0 and got["misses"] == 0 and got["hits"] == 0, got
-    assert not xdg.exists() and not named.exists()
+    assert run["compiles"] > 0 and run["misses"] == 0 and run["hits"] == 0, run
+    assert not (root / "xdg").exists() and not (root / "named").exists()
