@@ -9,7 +9,7 @@ import pytest
 
 import brdf
 import brdf._poulin_fournier as pf
-from tests.brdf._util import edge_directions, ev_pairs, from_cos
+from tests.brdf._util import edge_directions, ev_pairs, fjit, from_cos
 from tests.helpers import assert_close, assert_finite
 
 GEOMETRIES = [(0.0, 1.0), (0.5, 1.0), (0.0, 0.5), (0.5, 0.5), (2.0, 0.2)]  # (spacing d, height h)
@@ -157,11 +157,16 @@ def test_quadrature_error_against_ten_times_the_nodes(monkeypatch):
     near = jnp.concatenate([near[:, :2], jnp.abs(near[:, 2:]) + 1e-3], -1)
     near = near / jnp.linalg.norm(near, axis=-1, keepdims=True)
     wi, wo = jnp.concatenate([wi, near]), jnp.concatenate([wo, wo])
+    # N_NODES is read when the model is traced: one program per node count, each
+    # compiled once (fresh jits, so the fine one cannot reuse the coarse trace) and
+    # reused for the three exponents (parameters are traced, not baked in)
+    coarse_fn = fjit(lambda m, a, b: jax.vmap(m)(a, b))
+    fine_fn = fjit(lambda m, a, b: jax.vmap(m)(a, b))
     for n in (1.0, 100.0, 1e4):
         m = brdf.PoulinFournier(0.0, 1.0, n, 0.5, 0.5)
-        coarse = jax.vmap(m)(wi, wo)
+        coarse = coarse_fn(m, wi, wo)
         monkeypatch.setattr(pf, "N_NODES", 10 * pf.N_NODES)
-        fine = jax.vmap(m)(wi, wo)
+        fine = fine_fn(m, wi, wo)
         monkeypatch.undo()
         scale = jnp.maximum(fine, 1e-6 * jnp.max(fine))
         # measured <= 4e-5 (docs/brdf.md); 1e-4 leaves room across jaxlib versions
@@ -195,13 +200,15 @@ def test_finite_difference_gradients():
     wo = from_cos(np.array([0.5, 0.8]), np.array([3.3, 5.0]))
     p0 = jnp.asarray([0.2, 0.7, 15.0, 0.6, 0.7])
 
-    @jax.jit
     def total(p):
         return jnp.sum(jax.vmap(brdf.PoulinFournier(*p))(wi, wo))
 
-    g = jax.grad(total)(p0)
     eps = 1e-6
-    fd = np.array([(total(p0.at[j].add(eps)) - total(p0.at[j].add(-eps))) / (2 * eps) for j in range(5)])
+    steps = eps * np.eye(5)
+    # one program: the gradient at p0 and total at the 10 shifted points
+    g, up, down = fjit(lambda p, s: (jax.grad(total)(p), jax.vmap(total)(p[None] + s),
+                                     jax.vmap(total)(p[None] - s)))(p0, steps)
+    fd = (np.asarray(up) - np.asarray(down)) / (2 * eps)
     # central differences in float64: truncation ~ eps^2 f''' and rounding ~ 1e-16 / eps
     assert_close(g, fd, rtol=1e-6, atol=1e-8)
 
@@ -210,12 +217,14 @@ def test_jit_vmap_eager_agree_and_texture_parameters():
     wi, wo = brdf.check.random_pairs(jax.random.PRNGKey(12), 64)
     r = jax.random.uniform(jax.random.PRNGKey(13), (64, 1))
     m = brdf.PoulinFournier(0.1 + 0.2 * r, jnp.full((64, 3), 0.6), 10 + 50 * r, 2 * r, 0.2 + 0.8 * r)
-    batched = m(wi, wo)
-    jitted = jax.jit(lambda m, a, b: m(a, b))(m, wi, wo)
+    call = jax.jit(lambda m, a, b: m(a, b))
+    batched = m(wi, wo)  # eager
+    jitted = call(m, wi, wo)
     one = jax.tree_util.tree_map(lambda x: x[5], m)
     assert batched.shape == (64, 3)
     assert_close(jitted, batched, rtol=1e-12, atol=0)
-    assert_close(one(wi[5], wo[5]), batched[5], rtol=1e-12, atol=0)
+    # one texel's material on unbatched [3] directions (jitted: the eager path is the batched call's)
+    assert_close(call(one, wi[5], wo[5]), batched[5], rtol=1e-12, atol=0)
 
 
 def test_fittable_round_trip_and_bad_parameters():
