@@ -382,8 +382,10 @@ def test_elementwise_kernels_finite_at_edges(dtype):
         "g2_hc": lambda c, s, p: brdf.smith_g2_height_correlated_over_cos(jnp.abs(c), jnp.abs(c) * p, 0 * c, 0 * c),
         "v_groove": lambda c, s, p: brdf.v_groove_g2_over_cos(jnp.abs(c), p, p, p),
     }
-    for name, f in fns.items():
-        v, g = jax.vmap(jax.value_and_grad(f, argnums=(0, 1, 2)))(c, s, one)
+    # one program for all of them (the values and gradients do not depend on how they are compiled)
+    out = fjit(lambda c, s, one: {name: jax.vmap(jax.value_and_grad(f, argnums=(0, 1, 2)))(c, s, one)
+                                  for name, f in fns.items()})(c, s, one)
+    for name, (v, g) in out.items():
         assert_finite(v, g)
         assert v.dtype == dtype, name
 
@@ -393,19 +395,31 @@ def test_jit_vmap_eager_agree(family, key):
     k1, k2 = jax.random.split(key)
     w = random_dirs(k1, 32, lower=True)
     a = jax.random.uniform(k2, (2, 32), jnp.float64, 1e-3, 1.0)
-    for term in TERMS:
-        f = kernel_xyz(family, term)
-        eager = f(*w.T, a[0], a[1])
-        assert_close(jax.jit(f)(*w.T, a[0], a[1]), eager)
-        assert_close(jax.vmap(f)(*w.T, a[0], a[1]), eager)
-        g = kernel(family, term)
-        assert_close(jax.jit(g)(w, a[0][:, None], a[1][:, None]), g(w, a[0][:, None], a[1][:, None]))
+    # eager (op by op) against one jitted program holding every kernel (XLA's default options), and one vmapped
+    xyz = [kernel_xyz(family, term) for term in TERMS]
+    last = [kernel(family, term) for term in TERMS]
     c = w[:, 2]
-    for f, args in ((brdf.schlick, (c, a[0])), (brdf.fresnel_transmittance, (c, 1 + a[0])),
-                    (brdf.blinn_phong_lobe, (c, a[0], 100 * a[1])), (brdf.phong_exponent, (a[0],)),
-                    (brdf.alpha_from_phong_exponent, (100 * a[0],))):
-        assert_close(jax.jit(f)(*args), f(*args))
-        assert_close(jax.vmap(f)(*args), f(*args))
+    elementwise = ((brdf.schlick, (c, a[0])), (brdf.fresnel_transmittance, (c, 1 + a[0])),
+                   (brdf.blinn_phong_lobe, (c, a[0], 100 * a[1])), (brdf.phong_exponent, (a[0],)),
+                   (brdf.alpha_from_phong_exponent, (100 * a[0],)))
+
+    def every(w, a0, a1, el_args, mapped):
+        run = jax.vmap if mapped else (lambda f: f)
+        return ([run(f)(*w.T, a0, a1) for f in xyz], [g(w, a0[:, None], a1[:, None]) for g in last],
+                [run(f)(*args) for (f, _), args in zip(elementwise, el_args, strict=True)])
+
+    el_args = [args for _, args in elementwise]
+    jitted = jax.jit(every, static_argnums=4)(w, a[0], a[1], el_args, False)
+    mapped = fjit(every, static_argnums=4)(w, a[0], a[1], el_args, True)
+    for f, j, m in zip(xyz, jitted[0], mapped[0], strict=True):
+        eager = f(*w.T, a[0], a[1])
+        assert_close(j, eager)
+        assert_close(m, eager)
+    for g, j in zip(last, jitted[1], strict=True):
+        assert_close(j, g(w, a[0][:, None], a[1][:, None]))
+    for (f, args), j, m in zip(elementwise, jitted[2], mapped[2], strict=True):
+        assert_close(j, f(*args))
+        assert_close(m, f(*args))
 
 
 # --- Fibonacci points -----------------------------------------------------------------------
@@ -511,7 +525,7 @@ def test_orthonormal_basis(dtype, key):
     assert_close(b0, [0.0, -1.0, 0.0])
     # finite gradients at and near the south pole
     g = jax.grad(lambda v: sum(jnp.sum(u * jnp.arange(1.0, 4.0, dtype=dtype)) for u in brdf.orthonormal_basis(v)))
-    assert_finite(jax.vmap(g)(jnp.asarray(_hard_normals(dtype), dtype)))
+    assert_finite(fjit(jax.vmap(g))(jnp.asarray(_hard_normals(dtype), dtype)))
 
 
 def stage_frame_reference(n, t_guess):
@@ -567,6 +581,7 @@ def test_frame_from_normal_tangent_jax_matches_numpy_and_has_finite_gradients():
         w = jnp.arange(1.0, 4.0, dtype=t.dtype)[None]
         return jnp.sum(t * w) + jnp.sum(b * (w + 1.0))
 
-    assert_finite(jax.grad(total, argnums=(0, 1))(jnp.asarray(n), jnp.asarray(tg)))
+    grad = fjit(jax.grad(total, argnums=(0, 1)))
+    assert_finite(grad(jnp.asarray(n), jnp.asarray(tg)))
     n32 = jnp.asarray(n, jnp.float32)
-    assert_finite(jax.grad(total, argnums=(0, 1))(n32, jnp.asarray(tg, jnp.float32)))
+    assert_finite(grad(n32, jnp.asarray(tg, jnp.float32)))
