@@ -5,7 +5,11 @@ float32 and float64, at the poles, on the seam (phi = 0 / 2 pi, the map's left a
 right edges, +z), next to both, for unnormalised (1e-3, 1e3, 1e-20, 1e20) and
 zero-length directions, and at pixel-centre and random directions. Where a value
 is known it is checked too: the poles and the zero vector map to v = 0 / 1, the
-lookup does not depend on the direction's length, the seam's two sides agree."""
+lookup does not depend on the direction's length, the seam's two sides agree.
+Each function's value and gradient are one jitted program (as the renderers call
+them; the library's own lookups are jitted), compiled once per function and dtype."""
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -97,15 +101,23 @@ def _check(name, out, grads):
     assert not bad, f"{name}: non-finite {bad}"
 
 
-def _value_and_grad(f, *args):
-    """f's output, and the gradient of the sum of its float outputs w.r.t. every float leaf of args."""
+@functools.cache
+def _compiled_value_and_grad(f, n_args):
+    """One jitted program per function, with XLA's default options: the library's lookups are jitted with them,
+    and brdf.check.FAST_COMPILE's emitters are not bit-identical (sample_latlong's float32 length independence
+    fails under them)."""
 
     def total(*a):
         out = f(*a)
         leaves = [x for x in jax.tree_util.tree_leaves(out) if jnp.issubdtype(x.dtype, jnp.inexact)]
         return sum(jnp.sum(x) for x in leaves), out
 
-    grads, out = jax.grad(total, argnums=tuple(range(len(args))), has_aux=True)(*args)
+    return jax.jit(jax.grad(total, argnums=tuple(range(n_args)), has_aux=True))
+
+
+def _value_and_grad(f, *args):
+    """f's output, and the gradient of the sum of its float outputs w.r.t. every float leaf of args."""
+    grads, out = _compiled_value_and_grad(f, len(args))(*args)
     return out, grads
 
 
@@ -139,7 +151,7 @@ def case_sample_latlong(dtype, method="bilinear"):
     env = _env(dtype)
     d, kinds = _all_directions()
     dj = jnp.asarray(d, dtype)
-    out, grads = _value_and_grad(lambda r, x: sample_latlong(r, x, method), env.radiance, dj)
+    out, grads = _value_and_grad(functools.partial(sample_latlong, method=method), env.radiance, dj)
     _check(f"sample_latlong({method})", out, grads)
     out = np.asarray(out)
     # the length of d does not matter (same pixel weights up to rounding)
@@ -174,10 +186,11 @@ def case_rotation_matrix(dtype):
 
 def case_rotate_envmap(dtype):
     env = _env(dtype)
+    rotated = lambda e, rr: rotate_envmap(e, rr).radiance  # noqa: E731  (one object: compiled once)
     for axis, angle in (([1.0, 0.0, 0.0], np.pi / 2), ([0.0, 0.0, 1.0], np.pi / 2), ([0.0, 1.0, 0.0], 0.0),
                         ([0.0, 0.0, 0.0], 1.0)):
         r = rotation_matrix(jnp.asarray(axis, dtype), jnp.asarray(angle, dtype))
-        out, grads = _value_and_grad(lambda e, rr: rotate_envmap(e, rr).radiance, env, r)
+        out, grads = _value_and_grad(rotated, env, r)
         _check(f"rotate_envmap about {axis}", out, grads)
 
 
@@ -187,9 +200,13 @@ def case_envmap_integral(dtype):
         _check("envmap_integral", out, grads)
 
 
+def _irradiance_64(e, n):
+    return envmap_irradiance(e, n, chunk=64)
+
+
 def case_envmap_irradiance(dtype):
     d, _ = _all_directions()
-    out, grads = _value_and_grad(lambda e, n: envmap_irradiance(e, n, chunk=64), _env(dtype), jnp.asarray(d, dtype))
+    out, grads = _value_and_grad(_irradiance_64, _env(dtype), jnp.asarray(d, dtype))
     _check("envmap_irradiance", out, grads)
 
 
@@ -218,8 +235,9 @@ def _maps(dtype):
 
 
 def case_envmap_sampler(dtype):
+    build = lambda r: envmap_sampler(EnvMap(r))  # noqa: E731  (one object: compiled once)
     for rad in _maps(dtype):
-        out, grads = _value_and_grad(lambda r: envmap_sampler(EnvMap(r)), rad)
+        out, grads = _value_and_grad(build, rad)
         _check("envmap_sampler", out, grads)
 
 
