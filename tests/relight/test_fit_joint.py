@@ -12,7 +12,7 @@ import skin_bssrdf
 import stage
 from relight.fitting import FitOptions, subsurface_radiance
 
-from ..scenes import uv_sphere
+from ..scenes import sphere_view
 
 RADIUS = 8.0
 TRUE_MFP = np.array([1.2, 0.6, 0.3])
@@ -21,15 +21,9 @@ F0, ALPHA = 0.03, 0.3
 
 @pytest.fixture(scope="module")
 def scene():
-    # test_fit_sss.py's 6 mm sphere: terminators give the irradiance gradients a mean free path softens.
-    mesh = uv_sphere(radius=6.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 32)
-    rig = stage.geodesic_dome(1)
-    cam = stage.look_at((0.0, 0.0, 400.0), fov_deg=4, width=64, height=64)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    keep = np.nonzero(cv[0])[0]
-    surface, lv, cv = surface.subset(keep), lv[keep], cv[:, keep]
+    # test_fit_sss.py's 6 mm sphere (tests/scenes.py's sphere_view, shared with it): terminators give the
+    # irradiance gradients a mean free path softens; every texel the camera sees.
+    _, surface, rig, cam, lv, cv = sphere_view(radius=6.0, res=32, distance=400.0, fov_deg=4, size=64, min_cos=-1.0)
     P = surface.num_samples
     dt = surface.position.dtype
     A = jnp.broadcast_to(jnp.array([0.8, 0.6, 0.45]), (P, 3))
@@ -44,13 +38,25 @@ def scene():
     return surface, rig, cam, lv, cv, cap, np.asarray(A)
 
 
-def test_predicted_subsurface_radiance_is_stage_simulates(scene):
+KW = dict(model="ggx", normals=False, per="region", radius_mm=RADIUS, mfp_range=(0.05, 4.0))
+
+
+@pytest.fixture(scope="module")
+def one_pass(scene):
+    """(the BRDF fit, fit_with_subsurface(passes=1) from it): the plain sequence relight.fit (GGX, fixed normals)
+    then relight.fit_subsurface, run once for both tests (its subsurface search is most of their time)."""
+    surface, *_, cap, _ = scene
+    f = relight.fit(cap, surface)
+    return f, relight.fit_with_subsurface(cap, surface, passes=1, first=f, **KW)
+
+
+def test_predicted_subsurface_radiance_is_stage_simulates(scene, one_pass):
     """subsurface_radiance of a fit equals stage.simulate of the fit's maps
     with only the subsurface term (the same operator radius), on every valid
-    observation: rel 1e-5 of the peak (float32 output)."""
+    observation: rel 1e-5 of the peak (float32 output). The fit: relight.fit
+    then relight.fit_subsurface (the one pass of fit_with_subsurface)."""
     surface, rig, cam, lv, cv, cap, _ = scene
-    f = relight.fit(cap, surface)
-    g = relight.fit_subsurface(cap, surface, f, radius_mm=RADIUS, mfp_range=(0.05, 4.0))
+    f, g = one_pass
     assert np.all(np.asarray(g.model) == relight.MODELS.index("subsurface"))
     pred = subsurface_radiance(cap, surface, g, radius_mm=RADIUS)
     maps = g.maps(surface)
@@ -65,7 +71,7 @@ def test_predicted_subsurface_radiance_is_stage_simulates(scene):
     assert not subsurface_radiance(cap, surface, f).any()
 
 
-def test_alternation_keeps_a_right_answer_right(scene):
+def test_alternation_keeps_a_right_answer_right(scene, one_pass):
     """Where the plain sequence is already right (a GGX BRDF stage on a convex
     sphere: measured F0 0.0316, region mfp errors 0 / 2.4 / 9.6%), a second
     pass (the lobe refitted on the capture minus the predicted subsurface
@@ -75,11 +81,10 @@ def test_alternation_keeps_a_right_answer_right(scene):
     lobe does absorb the diffusion, the textured head of `relight demo`, the
     second pass is what removes it: docs/RESULTS.md.)"""
     surface, *_, cap, A = scene
-    kw = dict(model="ggx", normals=False, per="region", radius_mm=RADIUS, mfp_range=(0.05, 4.0))
     calls = []
-    one = relight.fit_with_subsurface(cap, surface, passes=1, **kw)
+    one = one_pass[1]
     two = relight.fit_with_subsurface(cap, surface, passes=2,
-                                     options=FitOptions(progress=lambda *a: calls.append(a[0])), **kw)
+                                     options=FitOptions(progress=lambda *a: calls.append(a[0])), **KW)
     for g in (one, two):
         assert abs(float(np.median(np.asarray(g.rho_s))) - F0) < 0.15 * F0
         err = np.abs(np.median(np.asarray(g.mfp), axis=0) - TRUE_MFP) / TRUE_MFP

@@ -24,8 +24,9 @@ from ..scenes import noisy_ggx_sphere
 ROOT = Path(__file__).resolve().parents[2]
 FIELDS = ("rho_d", "rho_s", "alpha", "normal", "tangent", "model", "residual", "heldout", "result", "steps",
           "observed", "uncertainty")
-# Few, short LM rounds: the test is of bookkeeping, not of convergence.
-FAST = FitOptions(chunk=16, rounds=2, steps_per_round=5)
+# Few, short LM rounds: the test is of bookkeeping, not of convergence. The chunk and steps of
+# test_fit_stream.py's FAST on the same sphere: the same compiled solver programs (tests/conftest.py's cache).
+FAST = FitOptions(chunk=16, rounds=2, steps_per_round=6)
 BLOCK = 24
 
 
@@ -175,6 +176,17 @@ _WORKER = textwrap.dedent("""
 """)
 
 
+def _cache_env() -> dict:
+    """The run's persistent compilation cache (tests/conftest.py's $RELIGHT_CACHE_DIR) for a worker process, as
+    JAX's own environment settings: a worker then loads the programs this process (or an earlier worker) compiled
+    instead of compiling them again. A hit returns the executable XLA would build; nothing else changes."""
+    folder = os.environ.get("RELIGHT_CACHE_DIR")
+    if not folder or folder.lower() in ("off", "none"):
+        return {}
+    return dict(JAX_COMPILATION_CACHE_DIR=folder, JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.2",
+                JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="-1")
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("localhost", 0))
@@ -188,7 +200,7 @@ def test_two_processes_share_the_blocks(scene, reference, tmp_path):
     cap, surface = scene
     P = surface.num_samples
     port = _free_port()
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu", **_cache_env())
     env.pop("XLA_FLAGS", None)
     procs = [subprocess.Popen([sys.executable, "-c", _WORKER.format(root=str(ROOT), port=port, pid=i,
                                                                     folder=str(tmp_path))],

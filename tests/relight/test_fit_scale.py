@@ -80,8 +80,18 @@ def test_intensity_one_rig_recovers_albedo(scene):
     assert 0.003 < np.median(ratio) < 0.03
 
 
+@pytest.fixture(scope="module")
+def units_ref(scene):
+    """test_other_units_give_the_same_maps' capture (GGX, 1% noise) and its fit in the rig's own units (GGX +
+    normals), made once for both scales k."""
+    surface, rig, cam, lv, cv = scene
+    rho, f0, alpha = _truth(surface.num_samples, seed=2)
+    cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 3)
+    return cap, relight.fit(cap, surface, normals=True)
+
+
 @pytest.mark.parametrize("k", [1e-6, 1e6])
-def test_other_units_give_the_same_maps(scene, k):
+def test_other_units_give_the_same_maps(scene, units_ref, k):
     """The same physical scene in other units: rig intensities x k and radiance
     x k. 1% noise (the same draw), GGX + normals: the normalised problems
     differ only by the float32 rounding of the scaled radiance and rig
@@ -89,10 +99,8 @@ def test_other_units_give_the_same_maps(scene, k):
     (1e-5), so the maps agree to 1e-4 relative (measured: 5e-6) and the
     failed flags and result codes are identical; Fit.residual scales with k
     (capture units); the uncertainties do not (parameter units)."""
-    surface, rig, cam, lv, cv = scene
-    rho, f0, alpha = _truth(surface.num_samples, seed=2)
-    cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 3)
-    ref = relight.fit(cap, surface, normals=True)
+    surface, rig = scene[:2]
+    cap, ref = units_ref
     other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, normals=True)
     for name in ("rho_d", "rho_s", "alpha", "normal", "uncertainty"):
         np.testing.assert_allclose(np.asarray(getattr(other, name)), np.asarray(getattr(ref, name)),
@@ -103,16 +111,23 @@ def test_other_units_give_the_same_maps(scene, k):
     np.testing.assert_allclose(np.asarray(other.residual), k * np.asarray(ref.residual), rtol=1e-4)
 
 
-@pytest.mark.parametrize("k", [1e-6, 1e6])
-def test_ladder_and_heldout_are_unit_free(scene, k):
-    """model="auto": the same rung per sample in any units; the held-out RMS in capture units."""
+@pytest.fixture(scope="module")
+def ladder_ref(scene):
+    """test_ladder_and_heldout_are_unit_free's capture (GGX, 1% noise) and its model="auto" fit in the rig's own
+    units, made once for both scales k. Every sample of the scene: the GGX rung's program is then
+    test_intensity_one_rig_recovers_albedo's (one padded chunk shape), compiled once."""
     surface, rig, cam, lv, cv = scene
-    n = 32
-    sub = surface.subset(np.arange(n))
-    rho, f0, alpha = (x[:n] for x in _truth(surface.num_samples, seed=4))
-    cap = _noisy(stage.simulate(sub, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv[:n], cv[:, :n]), 0.01, 5)
-    ref = relight.fit(cap, sub, model="auto", options=relight.fitting.FitOptions(rounds=1))
-    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), sub, model="auto",
+    rho, f0, alpha = _truth(surface.num_samples, seed=4)
+    cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 5)
+    return cap, relight.fit(cap, surface, model="auto", options=relight.fitting.FitOptions(rounds=1))
+
+
+@pytest.mark.parametrize("k", [1e-6, 1e6])
+def test_ladder_and_heldout_are_unit_free(scene, ladder_ref, k):
+    """model="auto": the same rung per sample in any units; the held-out RMS in capture units."""
+    surface, rig = scene[:2]
+    cap, ref = ladder_ref
+    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, model="auto",
                         options=relight.fitting.FitOptions(rounds=1))
     np.testing.assert_array_equal(np.asarray(other.model), np.asarray(ref.model))
     # Tolerances as in test_other_units_give_the_same_maps (float32 inputs, solver rtol 1e-5).

@@ -42,6 +42,14 @@ def _capture(sphere, mfp, noise=0.01, seed=0):
     return stage.Capture(cap.radiance * jnp.asarray(eps, cap.radiance.dtype), cap.mask, cap.rig, cap.cameras), A
 
 
+@pytest.fixture(scope="module")
+def lambertian(sphere):
+    """(capture, relight.fit of it) of Lambertian data with a GGX lobe and no subsurface (1% noise): one capture
+    and BRDF fit for the three tests that need data without subsurface."""
+    cap, _ = _capture(sphere, None, seed=1)
+    return cap, relight.fit(cap, sphere[0])
+
+
 def test_mean_free_path_recovered_within_15_percent(sphere):
     surface = sphere[0]
     truth = np.array([1.2, 0.6, 0.3])
@@ -61,27 +69,25 @@ def test_mean_free_path_recovered_within_15_percent(sphere):
     assert np.all(np.isfinite(mfp))
 
 
-def test_local_diffuse_keeps_the_brdf_rung(sphere):
+def test_local_diffuse_keeps_the_brdf_rung(sphere, lambertian):
     surface = sphere[0]
-    cap, _ = _capture(sphere, None, seed=1)
-    f = relight.fit(cap, surface)
+    cap, f = lambertian
     g = relight.fit_subsurface(cap, surface, f, radius_mm=8.0, mfp_range=(0.05, 4.0))
     # Lambertian data: subsurface does not beat the local term by more than noise.
     assert np.all(np.asarray(g.model) == relight.MODELS.index("ggx"))
     assert np.all(np.asarray(g.mfp) == 0)
 
 
-def test_bad_regions_are_refused(sphere):
+def test_bad_regions_are_refused(sphere, lambertian):
     surface = sphere[0]
-    cap, _ = _capture(sphere, None, seed=2, noise=0.0)
-    f = relight.fit(cap, surface)
+    cap, f = lambertian
     with pytest.raises(ValueError, match="regions"):
         relight.fit_subsurface(cap, surface, f, regions=np.zeros(3, int))
     with pytest.raises(ValueError, match="mfp_range"):
         relight.fit_subsurface(cap, surface, f, mfp_range=(2.0, 1.0))
 
 
-def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
+def test_auto_ladder_keeps_lambert_without_subsurface(sphere, lambertian):
     """per="auto" on Lambertian data (no subsurface): the local Lambert rung
     (mfp_rung 0, the BRDF's model and albedo kept, mfp 0) for > 90% of the
     samples (measured: all 490): subsurface's Fresnel in/out factors do not
@@ -89,8 +95,7 @@ def test_auto_ladder_keeps_lambert_without_subsurface(sphere):
     is solved again beside the fitted lobe (on every light of each seeing
     view): within 3% of the BRDF fit's own (measured 1.6%)."""
     surface = sphere[0]
-    cap, _ = _capture(sphere, None, seed=3)
-    f = relight.fit(cap, surface)
+    cap, f = lambertian
     g = relight.fit_subsurface(cap, surface, f, per="auto", holdout=3, radius_mm=5.0, mfp_range=(0.05, 4.0))
     rung = np.asarray(g.mfp_rung)
     assert np.mean(rung == 0) > 0.9

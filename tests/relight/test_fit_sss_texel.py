@@ -71,6 +71,13 @@ def texel_fit(sphere, varied):
     return relight.fit_subsurface(cap, sphere[0], fitted, per="texel", radius_mm=RADIUS_MM)
 
 
+@pytest.fixture(scope="module")
+def region_fit(sphere, varied):
+    """per="region" on the varied scene (one mean free path per channel), for the two tests that use it."""
+    cap, fitted = varied[:2]
+    return relight.fit_subsurface(cap, sphere[0], fitted, radius_mm=RADIUS_MM)
+
+
 def _finite_fit(g):
     for name in ("rho_d", "mfp", "rho_s", "alpha", "normal", "heldout", "residual"):
         assert np.all(np.isfinite(np.asarray(getattr(g, name)))), name
@@ -114,7 +121,7 @@ def test_exitance_jacobian_is_diagonal(sphere):
     np.testing.assert_allclose(np.asarray(A * S[..., 0]), np.asarray(exitance(mfp, A)), rtol=1e-12)
 
 
-def test_texel_recovers_a_varying_mean_free_path(sphere, varied, texel_fit):
+def test_texel_recovers_a_varying_mean_free_path(sphere, varied, texel_fit, region_fit):
     """Per texel and channel, over the identifiable texels (1-sigma of ln mfp <
     0.25): median relative error < 12% per channel (measured 4.7-6.6%), and in
     the 3 mm area < 12% (measured 3.9-6.3%), where the one-region fit is off by
@@ -141,7 +148,7 @@ def test_texel_recovers_a_varying_mean_free_path(sphere, varied, texel_fit):
         assert s3.sum() > 0.5 * np.sum(area == 2), c
         assert np.median(rel[s3, c]) < 0.12, c
         assert np.sum(s & (area == 0)) < 0.05 * np.sum(area == 0), c
-    region = relight.fit_subsurface(cap, surface, fitted, radius_mm=RADIUS_MM)
+    region = region_fit
     rel_region = np.abs(np.asarray(region.mfp) - truth) / truth
     assert np.median(rel_region[area == 2]) > 0.3
     # Texel-channels the data barely inform (sigma >= 5, or unknown) stay near the region's value: within a
@@ -160,12 +167,11 @@ def test_texel_recovers_a_varying_mean_free_path(sphere, varied, texel_fit):
     assert np.median(np.abs(np.asarray(g.rho_d) - A) / A) < 0.015
 
 
-def test_region_rung_reports_its_uncertainty(sphere, varied, texel_fit):
+def test_region_rung_reports_its_uncertainty(texel_fit, region_fit):
     """per="region": rung 1 everywhere (subsurface beats the local term), one
     sigma per channel shared by all texels of the region, finite and below
     every texel's own (the region pools the texels' informations)."""
-    cap, fitted = varied[:2]
-    g = relight.fit_subsurface(cap, sphere[0], fitted, radius_mm=RADIUS_MM)
+    g = region_fit
     _finite_fit(g)
     assert np.all(np.asarray(g.mfp_rung) == 1)
     sig = np.asarray(g.mfp_sigma)
