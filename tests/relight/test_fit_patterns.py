@@ -122,7 +122,7 @@ def test_gradient_patterns_recover_lambert_albedo_and_normal(lsx):
     L = rig.num_lights
     arrays, *_ = _fit_patterns._block_arrays(pc, lsx["lv"], surf, np.asarray(G, np.float64), np.ones(L, bool), 0,
                                              surf.num_samples, L, np.float64)
-    p0 = jax.vmap(lambda *a: _fit_patterns.pattern_start(*a, lay))(*(jnp.asarray(x) for x in arrays))
+    p0 = jax.jit(jax.vmap(lambda *a: _fit_patterns.pattern_start(*a, lay)))(*(jnp.asarray(x) for x in arrays))
     tilt = np.degrees(np.arccos(np.clip(np.asarray(p0["normal"])[:, 2], -1, 1)))
     assert np.median(tilt) < 5.0, tilt
 
@@ -186,8 +186,8 @@ def test_pattern_jacobian_matches_autodiff_of_the_reference_model(model, normals
         pred = jnp.einsum("kl,vlc->vkc", j(weff), jnp.stack(per_view))
         return _fit_model.robust(j(sw) * (pred - j(obs)), c).reshape(-1), pred
 
-    r_ref, pat_ref = reference(u)
-    J_ref = jax.jacfwd(lambda v: reference(v)[0])(u)
+    # One compiled program for the reference and its Jacobian (op-by-op dispatch compiles every primitive).
+    r_ref, pat_ref, J_ref = jax.jit(lambda v: (*reference(v), jax.jacfwd(lambda x: reference(x)[0])(v)))(u)
     assert np.all(np.isfinite(np.asarray(J))) and np.all(np.isfinite(np.asarray(r)))
     np.testing.assert_allclose(np.asarray(pat), np.asarray(pat_ref), rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.asarray(r), np.asarray(r_ref), rtol=1e-10, atol=1e-12)
