@@ -49,6 +49,12 @@ def _reference(u, lay, wi, wo, irr, obs, sw, c):
     return f(u), jax.jacfwd(f)(u)
 
 
+@jax.jit(static_argnames=("lay",))
+def _predict(u, lay, wi, wo, irr):
+    """The reference prediction [N, 3] (the directions as arguments: one compilation per rung, whatever the edge)."""
+    return _fit_model.predict(_fit_model.unpack(u, lay), lay, wi, wo, irr)
+
+
 def _component_major(r_ref, J_ref):
     """Reference [N*3] / [N*3, k] (observation-major) reordered to [3*N] / [3*N, k]."""
     return r_ref.reshape(N, 3).T.reshape(-1), jnp.swapaxes(J_ref.reshape(N, 3, -1), 0, 1).reshape(3 * N, -1)
@@ -85,7 +91,7 @@ def test_structured_jacobian_matches_autodiff_of_reference(model, normals, cauch
     assert np.all(np.isfinite(np.asarray(J))) and np.all(np.isfinite(np.asarray(r)))
     np.testing.assert_allclose(r, r_ref, atol=1e-12 * max(1.0, float(jnp.max(jnp.abs(r_ref)))))
     np.testing.assert_allclose(J, J_ref, atol=1e-9 * float(jnp.max(jnp.abs(J_ref))))
-    pred_ref = jax.jit(lambda v: _fit_model.predict(_fit_model.unpack(v, lay), lay, wi, wo, irr))(jnp.asarray(u))
+    pred_ref = _predict(jnp.asarray(u), lay, wi, wo, irr)
     np.testing.assert_allclose(pred, T(pred_ref), atol=1e-12)
 
 
