@@ -139,7 +139,7 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
     a = ap.parse_args(argv)
     fits = [(m, loss) for m in a.models.split(",") for loss in a.losses.split(",")]
-    report = {"machine": machine(), "command": "python scripts/eval_outside.py " + " ".join(argv or []).strip(),
+    report = {"machine": machine(), "command": " ".join(["python scripts/eval_outside.py", *(argv or [])]),
               "sections": {}}
     t0 = time.perf_counter()
     for section in a.sections.split(","):
