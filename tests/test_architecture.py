@@ -42,9 +42,9 @@ THIRD_PARTY = {
 
 # (d) relight's layering (docs/ARCHITECTURE.md): a subpackage imports only subpackages of a lower layer, so
 # image, materials and results (result sets, atomic writes) import none, io may use them, envmap, evaluation
-# (held-out scoring), export (exporters) and simulation (simulated captures written whole) io, fitting and render everything below them
-# but not each other, patterns (learned lighting) and view (the results viewer) everything below them but not
-# each other, demo (relight demo as one call) everything below it, and cli all.
+# (held-out scoring), export (exporters) and simulation (simulated captures written whole) io, fitting and
+# render everything below them but not each other, patterns (learned lighting) and view (the results viewer)
+# everything below them but not each other, demo (relight demo as one call) everything below it, and cli all.
 LAYER = {"image": 0, "materials": 0, "results": 0, "io": 1, "envmap": 2, "evaluation": 2, "export": 2,
          "simulation": 2, "fitting": 3, "render": 3, "patterns": 4, "view": 4, "demo": 5, "cli": 6}
 
