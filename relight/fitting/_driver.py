@@ -34,6 +34,7 @@ path) is fitted afterwards, across samples, by :func:`relight.fit_subsurface`.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import jax.numpy as jnp
 import numpy as np
@@ -191,7 +192,29 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
     # A refit phase whose rung the last block did not use learns its total only now.
     for k in plan.rungs if len(plan.rungs) > 1 else ():
         phases.finish(f"fit {MODELS[k]}", chosen[k])
+    _warn_albedo_at_bound(out["rho_d"], plan.n_valid >= MIN_OBSERVATIONS)
     return fit_from_arrays(out, plan.dt, plan.floor, plan.solver_name)
+
+
+# A diffuse albedo this close to 1, the model's bound (energy conservation), is pressed against it; on more than
+# ALBEDO_BOUND_FRACTION of the fitted samples that is the units, not the material.
+ALBEDO_BOUND = 0.98
+ALBEDO_BOUND_FRACTION = 0.05
+
+
+def _warn_albedo_at_bound(rho_d: np.ndarray, fitted: np.ndarray) -> None:
+    """Warn when many fitted samples' diffuse albedo reaches the model's bound of 1: a diffuse surface
+    reflects at most what it receives, so the radiance is too large for the lights' stated intensities
+    (uncalibrated strobes read with intensity 1, sensor counts with no gain): the fit clips, it does not fit."""
+    n = int(np.sum(fitted))
+    if n == 0:
+        return
+    frac = float(np.sum(np.any(rho_d[fitted] >= ALBEDO_BOUND, axis=-1))) / n
+    if frac > ALBEDO_BOUND_FRACTION:
+        warnings.warn(f"fit: {frac:.0%} of the {n} fitted samples reach diffuse albedo 1, the model's bound: the "
+                      f"radiance is larger than the lights' intensities allow. Likely wrong units (uncalibrated "
+                      f"lights read with intensity 1, sensor counts with no gain): scale the rig's intensities "
+                      f"or the radiance (docs/fit.md, 'Units and scale').", stacklevel=3)
 
 
 class _Phases:

@@ -4,6 +4,7 @@ of relight.evaluation (closed forms on synthetic Lambertian captures; the azimut
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -134,3 +135,24 @@ def test_real_faces_are_lit_from_the_side_the_directions_say():
     left = img[x < -0.3][:, :, : W // 2].mean() / img[x < -0.3][:, :, W // 2:].mean()
     right = img[x > 0.3][:, :, W // 2:].mean() / img[x > 0.3][:, :, : W // 2].mean()
     assert left > 2.0 and right > 2.0, (left, right)
+
+
+def test_a_fit_in_the_wrong_units_says_so():
+    """Radiance larger than the lights allow (intensities 100x too small: albedo 20-80 in the stated units)
+    presses the diffuse albedo against its bound of 1; the fit warns, naming the likely cause. In the right
+    units it is silent, and recovers the albedo."""
+    import relight
+    from relight.io import diligent_capture
+
+    data, _, albedo = _lambert_data(L=16, H=4, W=4)
+    # The images are albedo cos E; a Lambertian BRDF is rho_d / pi, so intensities pi E make rho_d the albedo.
+    data = dataclasses.replace(data, light_intensities=data.light_intensities * np.float32(np.pi))
+    capture, surface = diligent_capture(data)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f = relight.fit(capture, surface, model="lambert", normals=True, loss="l2")
+    np.testing.assert_allclose(np.asarray(f.rho_d), albedo, rtol=0.02)
+    wrong = dataclasses.replace(data, light_intensities=data.light_intensities / 100)
+    capture, surface = diligent_capture(wrong)
+    with pytest.warns(UserWarning, match=r"100% of the 16 fitted samples reach diffuse albedo 1.*units"):
+        relight.fit(capture, surface, model="lambert", normals=True, loss="l2")
