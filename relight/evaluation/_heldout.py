@@ -13,14 +13,10 @@ import numpy as np
 
 import stage
 
-from ..io import DiligentData
+from ..io import DiligentData, grey_value
 
 __all__ = ["heldout_split", "lambert_least_squares", "observation_validity", "predict_fit", "predict_lambert",
            "relative_rms"]
-
-# The baseline's grey value: ITU-R BT.601 luma weights, the DiLiGenT benchmark's own.
-_GREY = np.array([0.2989, 0.5870, 0.1140])
-
 
 def heldout_split(num_lights: int, every: int, offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(training lights, held-out lights): every ``every``-th light from ``offset`` is held out.
@@ -81,7 +77,7 @@ def lambert_least_squares(data: DiligentData, lights, valid: np.ndarray | None =
     """
     lights = np.asarray(lights)
     img = data.images[lights][:, data.mask, :] / data.light_intensities[lights][:, None, :]  # [L', P, 3]
-    grey = np.minimum(img @ _GREY, 1.0)
+    grey = grey_value(img)
     L = data.light_directions[lights].astype(np.float64)
     if valid is None:
         b = np.linalg.lstsq(L, grey, rcond=None)[0].T

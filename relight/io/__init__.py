@@ -16,6 +16,7 @@ from ._capture_writer import CaptureFolderWriter as CaptureFolderWriter
 from ._capture_writer import store_blocks as store_blocks
 from ._diligent import DiligentData as DiligentData
 from ._diligent import diligent_capture as diligent_capture
+from ._diligent import grey_value as grey_value
 from ._diligent import is_diligent_folder as is_diligent_folder
 from ._diligent import lambert_normals as lambert_normals
 from ._diligent import read_diligent as read_diligent
@@ -145,6 +146,7 @@ __all__ = [
     "is_photo_capture",
     "jsonable",
     "lambert_normals",
+    "grey_value",
     "load_texel_capture",
     "load_texel_maps",
     "MESH_UNITS",

@@ -28,7 +28,10 @@ import stage
 from ._errors import ImageFormatError, check_radiance, path_inside
 from ._png import read_png
 
-__all__ = ["DiligentData", "diligent_capture", "is_diligent_folder", "lambert_normals", "read_diligent"]
+__all__ = ["DiligentData", "diligent_capture", "grey_value", "is_diligent_folder", "lambert_normals", "read_diligent"]
+
+# The benchmark's grey value: ITU-R BT.601 luma weights.
+_LUMA = (0.2989, 0.5870, 0.1140)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,11 +65,17 @@ def is_diligent_folder(folder: str | os.PathLike) -> bool:
             and all((folder / f).is_file() for f in ("light_directions.txt", "light_intensities.txt", "mask.png")))
 
 
+def grey_value(rgb: np.ndarray) -> np.ndarray:
+    """The DiLiGenT benchmark's grey value of RGB values [..., 3]: ITU-R BT.601 luma, clipped at 1
+    (full scale); the Lambertian baselines fit it."""
+    return np.minimum(rgb @ np.asarray(_LUMA, rgb.dtype), 1.0)
+
+
 def lambert_normals(data: DiligentData) -> np.ndarray:
     """The benchmark's baseline: grey Lambertian least squares on every light,
     float64 [P, 3] per mask pixel (albedo-scaled, not unit length)."""
     img = data.images / data.light_intensities[:, None, None, :]
-    grey = np.minimum(0.2989 * img[..., 0] + 0.5870 * img[..., 1] + 0.1140 * img[..., 2], 1.0)
+    grey = grey_value(img)
     return np.linalg.lstsq(data.light_directions.astype(np.float64), grey[:, data.mask], rcond=None)[0].T
 
 

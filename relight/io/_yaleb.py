@@ -125,6 +125,8 @@ def read_yaleb(folder: str | os.PathLike, *, face_threshold: float = 0.05) -> Di
     Raises ImageFormatError naming the file: frames of different sizes or bit depths, a frame that
     cannot be read; FileNotFoundError when the folder holds no strobe frame.
     """
+    if not 0.0 <= face_threshold < 1.0:
+        raise ValueError(f"face_threshold must be in [0, 1), got {face_threshold}")
     folder = Path(folder)
     frames = _frames(folder) if folder.is_dir() else []
     if not frames:
@@ -138,8 +140,6 @@ def read_yaleb(folder: str | os.PathLike, *, face_threshold: float = 0.05) -> Di
             raise ImageFormatError(f"{folder / name}: size {img.shape} / maximum {maxval} differ from the first "
                                    f"frame's {images.shape[1:]} / {scale}")
         images[k] = img.astype(np.float32) / np.float32(scale)
-    if not 0.0 <= face_threshold < 1.0:
-        raise ValueError(f"face_threshold must be in [0, 1), got {face_threshold}")
     mask = np.median(images, axis=0) >= face_threshold
     dirs = yaleb_direction([f[1] for f in frames], [f[2] for f in frames]).astype(np.float32)
     return DiligentData(images=np.repeat(images[..., None], 3, axis=-1), light_directions=dirs,
