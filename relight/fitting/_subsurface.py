@@ -84,6 +84,18 @@ def _reduced(y, valid, E, wo, eta, dt):
     return data, _tx.irradiance_unit(E, data)
 
 
+@jax.jit(static_argnames=("eta",))
+def _basis(op, d, E, wo, *, eta):
+    """k [V, L, P, C]: the radiance per unit albedo for shape lengths d [P, C] through the operator ``op``, the
+    transmitted irradiance E [L, P, C] and the local views wo [V, 1, P, 3]. At module level with the operator and
+    views as arguments, not a closure over them: one compilation per shape for every region search of a process
+    (and a persistent-cache entry across processes), where a closure was traced and compiled again on every call
+    of ``fit_subsurface``."""
+    prof = skin_bssrdf.Burley(jnp.ones_like(d), d)
+    S = jax.vmap(lambda e: op.apply(prof, e))(E)  # [L, P, C]
+    return stage.subsurface_exitance(S[None], wo, eta)
+
+
 def _region_search(y, vm, E, wo, op, labels, R, lo, hi, grid, refine, iterations, search, final, A0, bar, eta):
     """The per-region mean free path: a log grid then golden-section refinement
     per (region, channel) on the ``search`` lights, alternating with the
@@ -92,18 +104,11 @@ def _region_search(y, vm, E, wo, op, labels, R, lo, hi, grid, refine, iterations
     C = y.shape[-1]
     scale = skin_bssrdf.SCALE_FITS["dmfp"]
 
-    @jax.jit
-    def basis(d, E):
-        """k [V, L, P, C]: the radiance per unit albedo for shape lengths d [P, C]."""
-        prof = skin_bssrdf.Burley(jnp.ones_like(d), d)
-        S = jax.vmap(lambda e: op.apply(prof, e))(E)  # [L, P, C]
-        return stage.subsurface_exitance(S[None], wo, eta)
-
     def solve(mfp_rc, A, lights):
         """Albedo [P, C] and per (region, channel) SSE for mfp [R, C] at albedo A (for d)."""
         yy, vv = y[:, lights], vm[:, lights]
         d = jnp.asarray(mfp_rc[labels] / np.asarray(scale(jnp.asarray(A))))
-        k = np.asarray(basis(jnp.maximum(d, 1e-4), jnp.asarray(E[lights])))
+        k = np.asarray(_basis(op, jnp.maximum(d, 1e-4), jnp.asarray(E[lights]), wo, eta=eta))
         num = np.sum(vv * yy * k, axis=(0, 1))
         den = np.sum(vv * k * k, axis=(0, 1))
         # den = 0 only where a sample has no valid observation (no absolute floor:
