@@ -43,10 +43,12 @@ KW = dict(model="ggx", normals=False, per="region", radius_mm=RADIUS, mfp_range=
 
 @pytest.fixture(scope="module")
 def one_pass(scene):
-    """(the BRDF fit, fit_with_subsurface(passes=1) from it): the plain sequence relight.fit (GGX, fixed normals)
-    then relight.fit_subsurface, run once for both tests (its subsurface search is most of their time)."""
+    """(the BRDF fit, fit_with_subsurface(passes=1) from it): the plain sequence relight.fit (GGX, fixed normals:
+    KW's model and normals, as ``first`` must be) then relight.fit_subsurface, run once for both tests (its
+    subsurface search is most of their time); test_alternation_keeps_a_right_answer_right starts its second pass
+    from the same BRDF fit (``first``), which fit_with_subsurface would otherwise make again."""
     surface, *_, cap, _ = scene
-    f = relight.fit(cap, surface)
+    f = relight.fit(cap, surface, model=KW["model"], normals=KW["normals"])
     return f, relight.fit_with_subsurface(cap, surface, passes=1, first=f, **KW)
 
 
@@ -82,8 +84,8 @@ def test_alternation_keeps_a_right_answer_right(scene, one_pass):
     second pass is what removes it: docs/RESULTS.md.)"""
     surface, *_, cap, A = scene
     calls = []
-    one = one_pass[1]
-    two = relight.fit_with_subsurface(cap, surface, passes=2,
+    first, one = one_pass
+    two = relight.fit_with_subsurface(cap, surface, passes=2, first=first,
                                      options=FitOptions(progress=lambda *a: calls.append(a[0])), **KW)
     for g in (one, two):
         assert abs(float(np.median(np.asarray(g.rho_s))) - F0) < 0.15 * F0

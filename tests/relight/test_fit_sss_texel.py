@@ -108,7 +108,8 @@ def test_exitance_jacobian_is_diagonal(sphere):
         return op.apply(skin_bssrdf.Burley.from_mean_free_path(a, m, config="dmfp"), E)
 
     for arg in (0, 1):
-        J = np.array(jax.jacfwd(exitance, argnums=arg)(mfp, A)).reshape(P * 3, P * 3)
+        # Compiled, not op by op (one compile instead of one per primitive and shape): the same Jacobian.
+        J = np.array(jax.jit(jax.jacfwd(exitance, argnums=arg))(mfp, A)).reshape(P * 3, P * 3)
         diag = np.diag(J).copy()
         np.fill_diagonal(J, 0.0)
         assert np.all(J == 0.0), arg
@@ -116,8 +117,8 @@ def test_exitance_jacobian_is_diagonal(sphere):
     # The fitter's kernel against the operator (one light: irradiance E).
     geo = tx.Geometry.of(op, jnp.float64)
     Gs, Gn = tx._gather(jnp.arange(P), E[None], geo.index, geo.weight, jnp.ones(P, jnp.float64))
-    S = jax.vmap(jax.vmap(tx._exitance, in_axes=(0, 0, 0, 0, None, None)),
-                 in_axes=(0, 0, 0, 0, 0, 0))(jnp.log(mfp), A, Gs, Gn, geo.distance, geo.rho)  # [P, 3, 1]
+    S = jax.jit(jax.vmap(jax.vmap(tx._exitance, in_axes=(0, 0, 0, 0, None, None)),
+                         in_axes=(0, 0, 0, 0, 0, 0)))(jnp.log(mfp), A, Gs, Gn, geo.distance, geo.rho)  # [P, 3, 1]
     np.testing.assert_allclose(np.asarray(A * S[..., 0]), np.asarray(exitance(mfp, A)), rtol=1e-12)
 
 
