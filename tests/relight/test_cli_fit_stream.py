@@ -16,6 +16,8 @@ from relight.cli import main
 from relight.fitting import FitOptions, fit_resumable
 from relight.io import SampleSubset, load_texel_capture, open_capture_store, open_texel_capture, read_maps
 
+from ._cli_runs import head16, small_index
+
 ROOT = Path(__file__).resolve().parents[2]
 MAPS = ("albedo", "specular", "alpha", "normal", "model")
 # Another device count splits each vmapped solver chunk differently, which moves float32 rounding by an
@@ -44,21 +46,13 @@ def _report(folder):
 
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory):
-    """(folder, store, reference map set fitted from the folder with the default block)."""
-    root = tmp_path_factory.mktemp("stream")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("RELIGHT_CACHE_DIR", "off")
-        cap, store, ref = root / "cap", root / "cap.zarr", root / "ref"
-        assert main(["simulate", "--rig", "dome:42", "--resolution", "16", "--image-size", "32", "--out", str(cap),
-                     "--quiet"]) == 0
+    """(folder, store, reference map set fitted from the folder with the default block): the run's shared
+    16 x 16 capture and its default fit (tests/relight/_cli_runs.py), and this module's store of it."""
+    cap, ref = head16(tmp_path_factory)
+    store = tmp_path_factory.mktemp("stream") / "cap.zarr"
+    with small_index():
         assert main(["convert", str(cap), str(store), "--quiet"]) == 0
-        assert main(["fit", str(cap), "--out", str(ref), "--quiet"]) == 0
     return cap, store, ref
-
-
-@pytest.fixture(autouse=True)
-def _no_cache(monkeypatch):
-    monkeypatch.setenv("RELIGHT_CACHE_DIR", "off")
 
 
 class _NoRadiance:

@@ -12,17 +12,19 @@ import pytest
 from relight.cli import main
 from relight.io import read_capture, read_exr, read_maps, write_exr
 
+from ._cli_runs import HEAD16_SIMULATE, head16
+
 RES = 16
 LIGHTS = 42
+assert HEAD16_SIMULATE[1:7] == ["--rig", f"dome:{LIGHTS}", "--resolution", str(RES), "--image-size", "32"]
 
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory):
+    """(folder for this module's outputs, capture, map set, white.exr): the run's shared `relight simulate --rig
+    dome:42 --resolution 16 --image-size 32` and its default `relight fit` (tests/relight/_cli_runs.py)."""
     root = tmp_path_factory.mktemp("pipeline")
-    cap, maps = root / "capture", root / "maps"
-    assert main(["simulate", "--rig", f"dome:{LIGHTS}", "--resolution", str(RES), "--image-size", "32",
-                 "--out", str(cap), "--quiet"]) == 0
-    assert main(["fit", str(cap), "--out", str(maps), "--quiet"]) == 0
+    cap, maps = head16(tmp_path_factory)
     white = root / "white.exr"
     write_exr(white, np.ones((16, 32, 3), np.float32))
     return root, cap, maps, white

@@ -9,6 +9,7 @@ camera) and its simulated truth map set serve every test."""
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -21,16 +22,18 @@ from relight.cli import main
 from relight.image import SUBJECT_KEY, luminance, subject_exposure, texture_view
 from relight.io import exr_header, load_texel_maps, read_exr, read_png, write_exr, write_maps
 
+from ._cli_runs import HEAD16_SIMULATE, head16
+
 RES = 16
 SIZE = 32
+assert HEAD16_SIMULATE[1:7] == ["--rig", "dome:42", "--resolution", str(RES), "--image-size", str(SIZE)]
 
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
+    """(folder for this module's outputs, the run's shared capture (tests/relight/_cli_runs.py), white.exr)."""
     root = tmp_path_factory.mktemp("render_outputs")
-    cap = root / "cap"
-    assert main(["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", str(SIZE),
-                 "--out", str(cap), "--quiet"]) == 0
+    cap, _ = head16(tmp_path_factory)
     white = root / "white.exr"
     write_exr(white, np.ones((16, 32, 3), np.float32))
     return root, cap, white
@@ -157,11 +160,12 @@ def test_a_map_set_without_a_rig_is_refused_or_takes_its_captures(setup, capsys)
     assert not out.exists()
     textures, maps, surface, _, _, _ = load_texel_maps(cap / "truth")
     linked = root / "linked"
-    write_maps(linked, maps, surface, surface_info=textures.surface_info, metadata={"capture": "../cap"})
+    rel = os.path.relpath(cap, linked)  # a relative path, resolved against the set's own folder
+    write_maps(linked, maps, surface, surface_info=textures.surface_info, metadata={"capture": rel})
     out = root / "linked_render"
     assert main(["render", str(linked), "--envmap", str(white), "--camera", str(cap / "cameras.json"),
                  "--out", str(out), "--quiet"]) == 0
-    assert f"{linked / '../cap' / 'rig.json'}" in _settings(out)["method"]
+    assert f"{linked / rel / 'rig.json'}" in _settings(out)["method"]
 
 
 def test_image_size_scales_a_camera_files_cameras(setup):

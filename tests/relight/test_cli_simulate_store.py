@@ -11,6 +11,8 @@ import pytest
 from relight.cli import main
 from relight.io import load_texel_capture, open_capture_store, read_capture, read_maps
 
+from ._cli_runs import HEAD16_SIMULATE, head16, small_index
+
 RES = 16
 COMMON = ["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", "32", "--quiet"]
 NOISE = ["--noise", "300", "--read-noise", "2", "--seed", "5"]
@@ -21,12 +23,19 @@ RTOL, ATOL = 2.5e-7, 1e-7
 
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory):
+    """{name: path}; "folder" is the run's shared COMMON capture and "fit" its default fit
+    (tests/relight/_cli_runs.py), the others are this module's own."""
+    assert HEAD16_SIMULATE == COMMON
     root = tmp_path_factory.mktemp("simulate_store")
-    runs = {"folder": [], "folder_noisy": NOISE, "store.zarr": [], "store_b64.zarr": ["--block", "64"],
+    folder, fit = head16(tmp_path_factory)
+    got = {"folder": folder, "fit": fit}
+    runs = {"folder_noisy": NOISE, "store.zarr": [], "store_b64.zarr": ["--block", "64"],
             "store_noisy.zarr": NOISE, "store_noisy_b64.zarr": [*NOISE, "--block", "64"]}
-    for name, extra in runs.items():
-        assert main([*COMMON, *extra, "--out", str(root / name)]) == 0
-    return root
+    with small_index():
+        for name, extra in runs.items():
+            got[name] = root / name
+            assert main([*COMMON, *extra, "--out", str(got[name])]) == 0
+    return got
 
 
 def _folder(path):
@@ -42,22 +51,22 @@ def _store(path):
 def test_store_equals_the_folder_form(captures, folder, store):
     """Same seed, same capture: radiance to float32 rounding, the mask exactly,
     both on the full texel grid [V, L, H*W, C] (unseen texels 0 and invalid)."""
-    rad_f, mask_f = _folder(captures / folder)
-    rad_s, mask_s = _store(captures / store)
+    rad_f, mask_f = _folder(captures[folder])
+    rad_s, mask_s = _store(captures[store])
     assert rad_s.shape == rad_f.shape == (1, 42, RES * RES, 3)
     np.testing.assert_array_equal(mask_s, mask_f)
     assert mask_f.sum() > 1000
     np.testing.assert_allclose(rad_s, rad_f, rtol=RTOL, atol=ATOL)
     if folder == "folder":  # (with noise, read noise is drawn in shadow too)
         assert np.all(rad_s[~mask_s] == 0)
-    assert open_capture_store(captures / store).sample_shape == (RES, RES)
+    assert open_capture_store(captures[store]).sample_shape == (RES, RES)
 
 
 def test_noise_is_real_and_seeded(captures):
     """The noisy capture differs from the clean one by about the Poisson-Gaussian
     variance L / exposure + (read / exposure)^2 (Foi et al. 2008, eq. 1): within 20%."""
-    clean, mask = _store(captures / "store.zarr")
-    noisy, mask_n = _store(captures / "store_noisy.zarr")
+    clean, mask = _store(captures["store.zarr"])
+    noisy, mask_n = _store(captures["store_noisy.zarr"])
     ok = mask & mask_n & (clean[..., 0] > 0.02)
     ratio = np.mean((noisy[ok] - clean[ok]) ** 2) / np.mean(clean[ok] / 300.0 + (2.0 / 300.0) ** 2)
     assert ok.sum() > 1000
@@ -69,7 +78,7 @@ def test_block_size_does_not_change_the_capture(captures, a, b):
     """Blocks of 64 texels (4 blocks, store chunks of 64) and one block of the
     whole grid give the same store contents; with noise too, since every
     observation has its own key (seed, view, light, texel)."""
-    sa, sb = open_capture_store(captures / a), open_capture_store(captures / b)
+    sa, sb = open_capture_store(captures[a]), open_capture_store(captures[b])
     assert sa.chunks[2] != sb.chunks[2]
     (ra, ma), (rb, mb) = sa.read(), sb.read()
     np.testing.assert_array_equal(ma, mb)
@@ -80,30 +89,30 @@ def test_store_holds_truth_preview_and_settings(captures):
     """truth/, the preview and settings.json live inside the store folder (one
     rename puts them all in place), load_texel_capture reads the store, and no
     temporary folder is left beside it."""
-    store = captures / "store_b64.zarr"
+    store = captures["store_b64.zarr"]
     truth, _ = read_maps(store / "truth")
     assert truth.resolution == (RES, RES)
     assert (store / "preview_all_lights.png").is_file() and (store / "preview_all_lights.exr").is_file()
     settings = json.loads((store / "settings.json").read_text())["resolved"]
     assert settings["form"] == "store" and settings["blocks"] == 4 and settings["block_texels"] == 64
     cap, surface, _, meta = load_texel_capture(store)
-    ref, ref_surface, _, _ = load_texel_capture(captures / "folder")
+    ref, ref_surface, _, _ = load_texel_capture(captures["folder"])
     assert surface.num_samples == ref_surface.num_samples == settings["samples_seen"]
     np.testing.assert_allclose(np.asarray(cap.radiance), np.asarray(ref.radiance), rtol=RTOL, atol=ATOL)
     assert meta["space"] == "texel" and meta["writer"] == "relight simulate"
-    assert not [p.name for p in captures.iterdir() if p.name.startswith(".")]
+    assert not [p.name for p in store.parent.iterdir() if p.name.startswith(".")]
 
 
 def test_fit_reads_the_store_as_the_folder(captures, tmp_path):
-    """``relight fit`` on the store and on the folder gives the same maps (the
-    inputs agree to float32 rounding; the fit is deterministic)."""
-    assert main(["fit", str(captures / "folder"), "--out", str(tmp_path / "mf"), "--quiet"]) == 0
-    assert main(["fit", str(captures / "store.zarr"), "--out", str(tmp_path / "ms"), "--quiet"]) == 0
-    (tf, _), (ts, _) = read_maps(tmp_path / "mf"), read_maps(tmp_path / "ms")
+    """``relight fit`` on the store and on the folder (the shared run's `relight fit folder --quiet`) gives the
+    same maps (the inputs agree to float32 rounding; the fit is deterministic)."""
+    mf = captures["fit"]
+    assert main(["fit", str(captures["store.zarr"]), "--out", str(tmp_path / "ms"), "--quiet"]) == 0
+    (tf, _), (ts, _) = read_maps(mf), read_maps(tmp_path / "ms")
     np.testing.assert_array_equal(tf.coverage, ts.coverage)
     for name in ("albedo", "specular", "alpha"):
         np.testing.assert_allclose(getattr(ts, name), getattr(tf, name), rtol=1e-4, atol=1e-5, err_msg=name)
-    rf = json.loads((tmp_path / "mf" / "report.json").read_text())
+    rf = json.loads((mf / "report.json").read_text())
     rs = json.loads((tmp_path / "ms" / "report.json").read_text())
     assert rs["samples"] == rf["samples"]
     # Noise-free: both errors are float32 rounding (~7e-8), equal to 1e-3 relative or 1e-6 absolute.

@@ -20,6 +20,8 @@ import pytest
 from relight.cli import COMMANDS, build_parser, main
 from relight.cli._common import PREVIEW_MIN_PX, Bar, upscale_nearest
 
+from ._cli_runs import small_index
+
 ROOT = Path(__file__).resolve().parents[2]
 RES = 12  # texel grid of the end-to-end capture (about 60 seen texels under the 42-light dome)
 
@@ -287,8 +289,7 @@ def test_upscale_nearest_keeps_texels_square():
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     root = tmp_path_factory.mktemp("ux")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("RELIGHT_CACHE_DIR", "off")
+    with small_index():
         assert main(["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", "24",
                      "--out", str(root / "cap"), "-qq"]) == 0
         assert main(["fit", str(root / "cap"), "--out", str(root / "maps"), "--solver", "gn", "--normals",
@@ -336,8 +337,7 @@ def test_texel_previews_are_enlarged_and_truth_has_them(fitted):
     assert albedo[..., 0].max() > 100  # the demo material's red albedo ~0.62, shown linear
 
 
-def test_quiet_keeps_the_summary_and_qq_hides_it(fitted, tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("RELIGHT_CACHE_DIR", "off")
+def test_quiet_keeps_the_summary_and_qq_hides_it(fitted, tmp_path, capsys):
     assert main(["convert", str(fitted / "cap"), str(tmp_path / "a.zarr"), "-q"]) == 0
     out = capsys.readouterr()
     assert out.out.startswith("wrote store") and out.err == ""
@@ -346,9 +346,8 @@ def test_quiet_keeps_the_summary_and_qq_hides_it(fitted, tmp_path, capsys, monke
     assert out.out == "" and out.err == ""
 
 
-def test_render_quiet_keeps_its_summary_and_qq_hides_it(fitted, tmp_path, capsys, monkeypatch):
+def test_render_quiet_keeps_its_summary_and_qq_hides_it(fitted, tmp_path, capsys):
     """render's summary line goes through _common.summary like every command's: -q keeps it, -qq hides it."""
-    monkeypatch.setenv("RELIGHT_CACHE_DIR", "off")
     assert main(["render", str(fitted / "maps"), "--out", str(tmp_path / "a"), "--no-index", "-q"]) == 0
     out = capsys.readouterr()
     assert out.out.startswith(f"wrote {tmp_path / 'a'}/ (1 frame(s), maps, method rig") and out.err == ""
