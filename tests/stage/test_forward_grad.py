@@ -101,8 +101,10 @@ GROUPS = {
 
 @pytest.fixture(scope="module")
 def compiled(scene):
+    # One program: the gradient and the jvp, whose primal output is f (the finite differences read it, so f
+    # needs no program of its own; the scene is small, so the gradient computed alongside costs little).
     f = _loss(scene)
-    return dict(f=jax.jit(f), grad=jax.jit(jax.grad(f)), jvp=jax.jit(lambda p, v: jax.jvp(f, (p,), (v,))))
+    return dict(both=jax.jit(lambda p, v: (jax.grad(f)(p), jax.jvp(f, (p,), (v,)))))
 
 
 @pytest.mark.parametrize("group", sorted(GROUPS))
@@ -114,11 +116,11 @@ def test_grad_and_jvp_match_finite_differences(scene, compiled, group):
     for k in GROUPS[group]:
         v[k] = jnp.asarray(rng.standard_normal(p[k].shape) * SCALE[k])
     shift = lambda s: {k: p[k] + s * v[k] for k in p}  # noqa: E731
-    fd = (compiled["f"](shift(STEP)) - compiled["f"](shift(-STEP))) / (2 * STEP)
-    g = compiled["grad"](p)
+    f = lambda q: compiled["both"](q, v)[1][0]  # noqa: E731
+    fd = (f(shift(STEP)) - f(shift(-STEP))) / (2 * STEP)
+    g, (f0, t) = compiled["both"](p, v)
     g_v = sum(jnp.vdot(g[k], v[k]) for k in GROUPS[group])
-    _, t = compiled["jvp"](p, v)
-    assert abs(float(fd)) > 1e-6 * abs(float(compiled["f"](p)))  # the group really moves the capture
+    assert abs(float(fd)) > 1e-6 * abs(float(f0))  # the group really moves the capture
     for k in GROUPS[group]:
         assert np.all(np.isfinite(np.asarray(g[k]))), k
     np.testing.assert_allclose(float(g_v), float(fd), rtol=RTOL)
@@ -130,7 +132,7 @@ def test_eager_grad_equals_jitted(scene, compiled):
     p = _params(scene)
     f = _loss(scene, light_chunk=4)
     g_eager = jax.grad(lambda q: f({**p, **q}))({k: p[k] for k in GROUPS["material"] + GROUPS["camera"]})
-    g_jit = compiled["grad"](p)
+    g_jit, _ = compiled["both"](p, p)
     for k, x in g_eager.items():
         np.testing.assert_allclose(np.asarray(x), np.asarray(g_jit[k]), rtol=1e-12, atol=1e-12)
 
@@ -173,11 +175,12 @@ def test_gradients_finite_at_grazing_light_and_alpha_floor():
         return jnp.sum(cap.radiance)
 
     args = (jnp.full((P, 3), 0.5), jnp.full((P, 1), 0.04), alpha, surf.normal, rig.position, jnp.zeros(3))
-    grads = jax.jit(jax.grad(f, argnums=tuple(range(len(args)))))(*args)
+    # One program for the gradient and the jvp. Jitted: the eager path with tracers is
+    # test_eager_grad_equals_jitted's; op by op it costs ~3x the compile.
+    tangents = tuple(jnp.ones_like(a) for a in args)
+    grads, (_, t) = jax.jit(lambda *a: (jax.grad(f, argnums=tuple(range(len(args))))(*a),
+                                        jax.jvp(f, a, tangents)))(*args)
     for name, g in zip(("rho_d", "f0", "alpha", "normal", "light_position", "theta"), grads, strict=True):
         assert np.all(np.isfinite(np.asarray(g))), name
     assert np.any(np.asarray(grads[4])[0] != 0)  # the grazing light's position still has a derivative
-    # Jitted: the eager path with tracers is test_eager_grad_equals_jitted's; op by op it costs ~3x the compile.
-    tangents = tuple(jnp.ones_like(a) for a in args)
-    _, t = jax.jit(lambda *a: jax.jvp(f, a, tangents))(*args)
     assert np.isfinite(float(t))
