@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -327,8 +328,11 @@ def run_rounds(arrays, index, lay, u0, start, solve, opts, bar):
     hmse = np.zeros(n_all, dtype)
     code = np.zeros(n_all, np.int32)
     steps = np.zeros(n_all, np.int32)
-    sigma = np.zeros((n_all, len(_fit_model.physical_vector(_fit_model.unpack(jnp.zeros(lay.size), lay), lay))),
-                     dtype)
+    # The length of the reported parameter vector, from shapes alone (jax.eval_shape: nothing dispatched or
+    # compiled, as op-by-op evaluation of a zero vector would be for each new layout).
+    n_phys = jax.eval_shape(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay),
+                            jax.ShapeDtypeStruct((lay.size,), jnp.result_type(float))).shape[0]
+    sigma = np.zeros((n_all, n_phys), dtype)
     active = local
     for _ in range(opts["rounds"]):
         for idx, n in _chunks_of(active, chunk):
