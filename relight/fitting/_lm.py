@@ -45,6 +45,7 @@ class _State(eqx.Module):
     y_eval: Float[Array, " p"]  # the trial point the next step evaluates
     first: Bool[Array, ""]
     cost: Float[Array, ""]  # 0.5 |r|^2 at the accepted point
+    cost0: Float[Array, ""]  # 0.5 |r|^2 at y0 (the first evaluation)
     jtj: Float[Array, "p p"]
     grad: Float[Array, " p"]  # J^T r at the accepted point
     pred: Float[Array, ""]  # the model's predicted cost reduction for y_eval
@@ -85,7 +86,7 @@ class NormalLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
                             f"J^T r [{p}]), got {aux_struct}")
         dt = y.dtype
         zero = jnp.zeros((), dt)
-        return _State(y_eval=y, first=jnp.array(True), cost=zero, jtj=jnp.zeros((p, p), dt),
+        return _State(y_eval=y, first=jnp.array(True), cost=zero, cost0=zero, jtj=jnp.zeros((p, p), dt),
                       grad=jnp.zeros((p,), dt), pred=jnp.ones((), dt), mu=jnp.ones((), dt),
                       nu=jnp.full((), 2.0, dt), terminate=jnp.array(False), result=optx.RESULTS.successful,
                       aux=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), aux_struct),
@@ -143,7 +144,8 @@ class NormalLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
         bad_start = state.first & ~finite
         result = optx.RESULTS.where(bad_start, optx.RESULTS.nonlinear_divergence, optx.RESULTS.successful)
-        new = _State(y_eval=y_new + delta, first=jnp.array(False), cost=cost_new, jtj=jtj, grad=grad, pred=pred,
+        new = _State(y_eval=y_new + delta, first=jnp.array(False), cost=cost_new,
+                     cost0=jnp.where(state.first, cost, state.cost0), jtj=jtj, grad=grad, pred=pred,
                      mu=mu, nu=nu, terminate=converged | bad_start, result=result,
                      aux=jax.tree.map(lambda a, b: jnp.where(accept, a, b), aux, state.aux),
                      num_accepted=state.num_accepted + accept.astype(state.num_accepted.dtype))
@@ -153,7 +155,7 @@ class NormalLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         return state.terminate, state.result
 
     def postprocess(self, fn, y, aux, args, options, state: _State, tags, result):
-        return y, aux, {"num_accepted_steps": state.num_accepted}
+        return y, aux, {"num_accepted_steps": state.num_accepted, "cost": state.cost, "initial_cost": state.cost0}
 
 
 __all__ = ["NormalLevenbergMarquardt"]
