@@ -22,7 +22,8 @@ both build the grid through) to take the first peak and reset it after.
   texels with a valid observation found from the mask alone (chunk by chunk),
   and the capture a ``relight.io.SampleSubset`` of the store over them (each
   block reads only the store chunks it touches); then
-  ``relight.fit(capture, surface, model="ggx", options=FitOptions(block=...))``. Throughput excludes compilation:
+  ``relight.fit(capture, surface, model="ggx", options=FitOptions(rounds=3, block=...))``. Throughput
+  excludes compilation:
   the first block (which compiles every solver program) is timed on its own
   (``on_block``), texels/s is over the remaining blocks, and compile time =
   first block's time - its texels / that rate. ``--fit-samples K`` fits only
@@ -140,6 +141,7 @@ def child_fit(args) -> None:
     stamps = []
     t0 = time.perf_counter()
     f = relight.fit(capture, surface, model="ggx", options=relight.fitting.FitOptions(
+        rounds=3,  # the step budget docs/figures/pipeline_memory.md was measured with
         block=args.block, on_block=lambda s, e, _: stamps.append((e, time.perf_counter()))))
     fit_s = time.perf_counter() - t0
     assert np.all(np.isfinite(np.asarray(f.rho_d)))

@@ -37,8 +37,10 @@ class FitOptions:
       default (:func:`relight.fit`: 4096; ``fit_patterns``: what keeps the block's pattern weights
       within 64 MiB).
     - ``rounds``, ``steps_per_round``: each sample gets up to ``rounds * steps_per_round`` solver
-      steps (defaults 3 and 20), later rounds only for the samples still unconverged, packed into
-      full chunks ("straggler compaction").
+      steps (defaults 12 and 20), later rounds only for the samples still unconverged, packed into
+      full chunks ("straggler compaction"), so a budget that most samples never reach costs little.
+      It is large enough that running out of it (``Fit.failed``) marks a sample the solver cannot
+      fit, not one it had no time for (docs/fit.md, "The step budget").
     - ``rtol``, ``atol``: the tolerances of a solver given by name (default 1e-5 / 1e-6, on
       residuals in radiance per unit irradiance: docs/fit.md, "Units and scale"); None with a
       solver object (it carries its own).
@@ -57,7 +59,7 @@ class FitOptions:
 
     chunk: int = 64
     block: int | None = None
-    rounds: int = 3
+    rounds: int = 12
     steps_per_round: int = 20
     rtol: float | None = None
     atol: float | None = None

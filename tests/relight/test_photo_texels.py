@@ -7,6 +7,8 @@ around the front, a 162-light geodesic dome; per camera one sample per pixel
 read back, resampled onto a 32 x 32 texel grid and fitted (GGX)."""
 
 import json
+import subprocess
+import sys
 
 import jax.numpy as jnp
 import numpy as np
@@ -183,7 +185,9 @@ def test_cli_fit_of_a_diligent_folder(shared_data, tmp_path):
     and y (245 pixels, ~10 s), Blinn-Phong + normals. Bar: mean angular error
     vs Normal_gt <= 2.5 deg (measured 1.70; the full-resolution fit in
     docs/RESULTS.md: 1.72, bar 2.0) and below the Lambertian least-squares
-    baseline's (4.12 on these pixels)."""
+    baseline's (4.12 on these pixels). A smooth sphere is well posed: under 2%
+    of its pixels flagged (24% of these with the earlier 60-step budget,
+    docs/fit.md "The step budget"; 0% with the default 240)."""
     from relight.cli import main
     from relight.io import read_png
 
@@ -191,11 +195,17 @@ def test_cli_fit_of_a_diligent_folder(shared_data, tmp_path):
     if not (ball / "light_directions.txt").is_file():
         pytest.skip(f"{ball}: DiLiGenT ballPNG not found")
     out = tmp_path / "ball"
-    assert main(["fit", str(ball), "--subsample", "8", "--out", str(out), "--quiet"]) == 0
+    # In a fresh process, as a user runs it: float32 (this test process enables float64, whose fits crawl
+    # longer through the same flat valleys: 8% of these pixels reach the budget there).
+    argv = ["fit", str(ball), "--subsample", "8", "--out", str(out), "--quiet"]
+    run = subprocess.run([sys.executable, "-c", f"from relight.cli import main; raise SystemExit(main({argv!r}))"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
     doc = json.loads((out / "report.json").read_text())
     e = doc["diligent"]["normal_error_deg"]
     assert doc["diligent"]["pixels"] == doc["samples"] > 200
     assert e["mean"] <= 2.5 and e["mean"] < e["lambert_ls_baseline_mean"]
+    assert doc["failed_fraction"] < 0.02
     assert "angular error vs Normal_gt" in (out / "report.md").read_text()
     png = read_png(out / "normals.png")
     assert png.ndim == 3 and png.shape[-1] == 3 and png.max() > 0
