@@ -30,7 +30,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     import relight
-    from relight.fitting import FitOptions
+    from relight.fitting import FitOptions, angular_error_deg
     from relight.io import diligent_capture, read_diligent
 
     rows = []
@@ -47,8 +47,7 @@ def main(argv=None):
                 t0 = time.perf_counter()
                 f = relight.fit(cap, surface, model=model, normals=True, options=FitOptions(rounds=r))
                 seconds = time.perf_counter() - t0
-                n = np.asarray(f.normal, np.float64)
-                err = np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
+                err = angular_error_deg(np.asarray(f.normal, np.float64), gt)
                 row = dict(object=obj, model=model, rounds=r, pixels=int(d.mask.sum()),
                            failed=float(np.mean(np.asarray(f.failed))), normal_mean_deg=float(err.mean()),
                            seconds=round(seconds, 1))

@@ -97,7 +97,6 @@ def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: 
     the start, code ``RESULTS.rejected``). Returns (u, code, steps, sigma [k'] of
     the physical parameters (:func:`relight.fitting._model.physical_vector`),
     rj(u))."""
-    res = _fit_model.materialised(rj)
     normal_lm = isinstance(solver, NormalLevenbergMarquardt)
     if normal_lm:  # it takes the structured normal equations as fn's aux
         def normal(u, _):
@@ -110,6 +109,7 @@ def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: 
         # evaluations: no further copies of the model in the program (a third less to compile).
         cost0, cost1 = 2 * sol.stats["initial_cost"], 2 * sol.stats["cost"]
     else:
+        res = _fit_model.materialised(rj)
         sol = optx.least_squares(lambda u, _: res(u), solver, u0, max_steps=max_steps, throw=False)
         cost0 = jnp.sum(res(u0) ** 2)
         cost1 = jnp.sum(res(sol.value) ** 2)
