@@ -13,7 +13,7 @@ from pathlib import Path
 import jax
 import pytest
 
-import tests.helpers  # noqa: F401  (the --jaxtyping-packages checker, tests.helpers.typechecker, must be loaded)
+import tests.helpers  # the --jaxtyping-packages checker (tests.helpers.typechecker) must be loaded first
 
 # One persistent compilation cache for the whole run, shared by the xdist workers and the CLI subprocesses, in a
 # fresh temporary folder (never the user's ~/.cache/relight/jax; tests of the cache set their own): the suite
@@ -74,37 +74,15 @@ def demo_output(tmp_path_factory):
     run's temporary folder, the other waits and reads it (a demo costs about two minutes of CPU)."""
     from relight.cli import _flags, demo, main
 
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder, not the user's
+    root = tests.helpers.run_root(tmp_path_factory)
     out = root / "shared-demo"
-    with _locked(root / "shared-demo.lock"):
+    with tests.helpers.locked(root / "shared-demo.lock"):
         if not (out / "report.json").is_file():
             with pytest.MonkeyPatch.context() as mp:  # the commands' own index page, whatever a test patched
                 mp.setattr(demo, "INDEX_FRAMES", _flags.INDEX_FRAMES)
                 mp.setattr(demo, "INDEX_SIZE", _flags.INDEX_SIZE)
                 assert main([*DEMO_ARGV, "--out", str(out)]) == 0
     return out
-
-
-class _locked:
-    """An exclusive lock on ``path`` (fcntl; where there is none, no lock: each process builds its own)."""
-
-    def __init__(self, path: Path):
-        self.path = path
-
-    def __enter__(self):
-        try:
-            import fcntl
-        except ImportError:
-            self.file = None
-            return self
-        self.file = open(self.path, "w")
-        fcntl.flock(self.file, fcntl.LOCK_EX)
-        return self
-
-    def __exit__(self, *exc):
-        if self.file is not None:
-            self.file.close()  # closing releases the lock
 
 
 if importlib.util.find_spec("xdist") is not None:

@@ -1,7 +1,9 @@
 """Per-dtype tolerances shared by the tests. A looser tolerance is local to its
 test and carries a comment saying why."""
 
+import contextlib
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -64,3 +66,23 @@ def load_script(name: str):
     finally:
         sys.path.remove(str(SCRIPTS))
     return mod
+
+
+def run_root(tmp_path_factory) -> Path:
+    """The test run's temporary folder, shared by the xdist workers (never the user's)."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@contextlib.contextmanager
+def locked(path: Path):
+    """An exclusive lock on ``path`` across processes (fcntl; where there is none, no lock: each process
+    builds its own copy)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    with open(path, "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield  # closing the file releases the lock

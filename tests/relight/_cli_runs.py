@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-import os
 from pathlib import Path
 
 import pytest
+
+from tests.helpers import locked, run_root
 
 HEAD16_SIMULATE = ["simulate", "--rig", "dome:42", "--resolution", "16", "--image-size", "32", "--quiet"]
 
@@ -30,31 +31,13 @@ def small_index():
         yield
 
 
-def _run_root(tmp_path_factory) -> Path:
-    base = tmp_path_factory.getbasetemp()
-    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder, not the user's
-
-
-@contextlib.contextmanager
-def _locked(path: Path):
-    """An exclusive lock on ``path`` (fcntl; where there is none, no lock)."""
-    try:
-        import fcntl
-    except ImportError:
-        yield
-        return
-    with open(path, "w") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        yield
-
-
 def head16(tmp_path_factory) -> tuple[Path, Path]:
     """(capture folder, map set): HEAD16_SIMULATE and ``relight fit CAPTURE --quiet``, once per run."""
     from relight.cli import main
 
-    root = _run_root(tmp_path_factory) / "shared-head16"
+    root = run_root(tmp_path_factory) / "shared-head16"
     cap, maps = root / "capture", root / "maps"
-    with _locked(_run_root(tmp_path_factory) / "shared-head16.lock"):
+    with locked(run_root(tmp_path_factory) / "shared-head16.lock"):
         if not (maps / "report.json").is_file():
             with small_index():
                 assert main([*HEAD16_SIMULATE, "--out", str(cap)]) == 0
