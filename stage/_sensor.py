@@ -179,15 +179,43 @@ def _key(seed):
     return jax.random.PRNGKey(seed) if jnp.ndim(seed) == 0 else jnp.asarray(seed)
 
 
+# Observations per call of the keyed exposure: every chunk is cut into tiles of this many (the last one padded
+# with zeros), so the program, whose vmapped Poisson sampler takes seconds to compile, is built once per
+# sensor kind and channel count, whatever the chunk shapes of a capture; ~0.2 MB of float32 a tile.
+_SENSE_TILE = 1 << 14
+
+
 @eqx.filter_jit
-def _sense_keyed(sensor: Sensor, key, view, lights, samples, radiance, mask):
+def _sense_tile(sensor: Sensor, key, view, lights, samples, radiance):
+    """``sensor.expose`` of each observation n of a tile with its own key (:func:`observation_key`
+    ``(key, view, lights[n], samples[n])``): (radiance [T, C] float32, saturated [T])."""
     kv = jax.random.fold_in(key, view)
 
     def one(light, sample, rad):
-        return sensor.expose(jax.random.fold_in(jax.random.fold_in(kv, light), sample), rad)
+        dn, sat = sensor.expose(jax.random.fold_in(jax.random.fold_in(kv, light), sample), rad)
+        return sensor.to_radiance(dn), sat
 
-    dn, sat = jax.vmap(lambda lt, r: jax.vmap(lambda t, x: one(lt, t, x))(samples, r))(lights, radiance)
-    return sensor.to_radiance(dn).astype(radiance.dtype), mask & ~sat
+    return jax.vmap(one)(lights, samples, radiance)
+
+
+def _sense_keyed(sensor: Sensor, key, view, lights, samples, radiance, mask):
+    """:func:`sense_keyed`'s measurement of a chunk [Lc, Pc, C] in tiles of ``_SENSE_TILE`` observations."""
+    lc, pc, c = radiance.shape
+    n = lc * pc
+    total = -(-n // _SENSE_TILE) * _SENSE_TILE
+    pad = lambda a: np.concatenate([a, np.zeros((total - n,) + a.shape[1:], a.dtype)])  # noqa: E731
+    flat = pad(radiance.reshape(n, c))
+    light = pad(np.repeat(np.asarray(lights, np.int32), pc))
+    sample = pad(np.tile(np.asarray(samples, np.int32), lc))
+    out = np.empty_like(flat)
+    sat = np.empty(total, bool)
+    view = jnp.asarray(view, jnp.int32)
+    for s in range(0, total, _SENSE_TILE):
+        t = slice(s, s + _SENSE_TILE)
+        r, k = _sense_tile(sensor, key, view, jnp.asarray(light[t]), jnp.asarray(sample[t]), jnp.asarray(flat[t]))
+        out[t], sat[t] = np.asarray(r), np.asarray(k)
+    out, sat = out[:n], sat[:n]
+    return out.reshape(lc, pc, c), mask & ~sat.reshape(lc, pc)
 
 
 def sense_keyed(sensor: Sensor | None, seed, radiance: Float[ArrayLike, "light sample channel"], mask, *, view: int,
@@ -217,7 +245,7 @@ def sense_keyed(sensor: Sensor | None, seed, radiance: Float[ArrayLike, "light s
         Foi et al. 2008, "Practical Poissonian-Gaussian noise modeling and fitting for
         single-image raw-data", eq. 1-3 (the noise model of ``Sensor.expose``).
     """
-    radiance = jnp.asarray(radiance, jnp.float32)
+    radiance = np.asarray(radiance, np.float32)
     if radiance.ndim != 3:
         raise ValueError(f"sense_keyed: radiance must be [Lc, Pc, C], got shape {radiance.shape}")
     mask = np.asarray(mask, bool)
@@ -231,6 +259,5 @@ def sense_keyed(sensor: Sensor | None, seed, radiance: Float[ArrayLike, "light s
         if lights.shape != (lc,) or samples.shape != radiance.shape[1:2]:
             raise ValueError(f"sense_keyed: lights {lights.shape} / samples {samples.shape} do not match radiance "
                              f"{radiance.shape}")
-        radiance, mask = _sense_keyed(sensor, _key(seed), jnp.asarray(view, jnp.int32), jnp.asarray(lights, jnp.int32),
-                                      jnp.asarray(samples, jnp.int32), radiance, jnp.asarray(mask))
+        radiance, mask = _sense_keyed(sensor, _key(seed), view, lights, samples, radiance, mask)
     return np.maximum(np.asarray(radiance, np.float32), 0.0), np.asarray(mask, bool)
