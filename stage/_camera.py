@@ -88,11 +88,13 @@ class Camera(eqx.Module):
         dt = jax.dtypes.canonicalize_dtype(np.promote_types(xdt, self.K.dtype))
         return x.astype(dt), self.K.astype(dt), self.R.astype(dt), self.t.astype(dt)
 
+    @eqx.filter_jit
     def to_camera(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
         """World points (mm) to camera coordinates X_c = R X + t (mm)."""
         points, _, R, t = self._cast(points)
         return points @ R.T + t.reshape((1,) * (points.ndim - 1) + (3,))
 
+    @eqx.filter_jit
     def project(self, points: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*batch 2"], Float[Array, " *batch"]]:
         """Pixel coordinates and depth (camera z, mm) of world points."""
         xc = self.to_camera(points)
@@ -118,6 +120,7 @@ class Camera(eqx.Module):
             return origins, jnp.broadcast_to(R[2], origins.shape)
         return -R.T @ t, safe_normalize(d_cam @ R)
 
+    @eqx.filter_jit
     def view_directions(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
         """Unit world directions from points toward the camera (wo before the
         change to the shading frame): toward the centre for a pinhole, -forward
@@ -127,6 +130,7 @@ class Camera(eqx.Module):
             return jnp.broadcast_to(-R[2], points.shape)
         return safe_normalize((-R.T @ t).reshape((1,) * (points.ndim - 1) + (3,)) - points)
 
+    @eqx.filter_jit
     def pixel_area(self, points: Float[ArrayLike, "*batch 3"]) -> Float[Array, " *batch"]:
         """Area (mm^2) of one pixel's footprint on the plane through each point
         perpendicular to the optical axis: z^2 / (fx fy) (pinhole), 1 / (fx fy)

@@ -25,6 +25,7 @@ camera.
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
@@ -117,6 +118,7 @@ def reflected_radiance(
     return out
 
 
+@eqx.filter_jit
 def reflected_radiance_lights(material, wi, wo, irradiance, visible=None):
     """``reflected_radiance`` over a leading light axis, one light at a time (the temporaries are one light's).
 

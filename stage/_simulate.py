@@ -53,6 +53,15 @@ def shading_directions(surface: Surface, rig: Rig, camera_center):
 
     ``camera_center``: the camera's centre [3] (mm), or a ``Camera`` (needed for
     an orthographic one, whose wo is the same everywhere)."""
+    if not isinstance(camera_center, Camera):
+        camera_center = jnp.asarray(camera_center)
+    return _shading_directions(surface, rig, camera_center)
+
+
+@eqx.filter_jit
+def _shading_directions(surface: Surface, rig: Rig, camera_center):
+    """:func:`shading_directions` as one program (eager, its operations would each compile on their own for
+    every new sample count)."""
     wi_world, irradiance = rig.incident(surface.position)
     if isinstance(camera_center, Camera):
         wo_world = camera_center.view_directions(surface.position)

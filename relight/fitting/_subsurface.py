@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -59,19 +60,28 @@ def _terms(capture, surface, fitted: Fit, eta):
     y, wo_v, lam = [], [], []
     E = None
     mask = np.asarray(capture.mask)
-    lit = np.any(mask, axis=0)  # [L, P]: a light's visibility does not depend on the view
+    lit = jnp.asarray(np.any(mask, axis=0))  # [L, P]: a light's visibility does not depend on the view
     for v, cam in enumerate(capture.cameras):
-        wi, wo, irr = stage.shading_directions(fr, capture.rig, cam)
-        spec = np.asarray(stage.reflected_radiance_lights(spec_brdf, wi, wo, irr), np.float64)
-        y.append(np.asarray(capture.radiance[v], np.float64) - spec)
-        # The fit's local Lambert term, with the view kept above the fitted horizon as the fitter keeps it.
-        lambert = stage.reflected_radiance_lights(brdf.Lambert(jnp.ones_like(maps.rho_d)), wi,
-                                                  view_above_horizon(wo), irr)
+        spec, lambert, wo, e = _view_terms(fr, capture.rig, cam, spec_brdf, jnp.asarray(eta, fr.normal.dtype), lit)
+        y.append(np.asarray(capture.radiance[v], np.float64) - np.asarray(spec, np.float64))
         lam.append(np.asarray(lambert, np.float64))
         wo_v.append(np.asarray(wo, np.float64))
         if E is None:
-            E = np.asarray(stage.subsurface_irradiance(wi, irr, eta, jnp.asarray(lit)), np.float64)
+            E = np.asarray(e, np.float64)
     return np.stack(y), mask, E, np.stack(wo_v), np.stack(lam)
+
+
+@eqx.filter_jit
+def _view_terms(fr, rig, cam, spec_brdf, eta, lit):
+    """One view's terms of :func:`_terms` as one program (eager, each of their dozens of operations would
+    compile on its own for every new capture size): the lobe's radiance [L, P, C], the local Lambert
+    prediction per unit albedo [L, P, C], the local views wo [P, 3] and the transmitted irradiance E [L, P, C]."""
+    wi, wo, irr = stage.shading_directions(fr, rig, cam)
+    spec = stage.reflected_radiance_lights(spec_brdf, wi, wo, irr)
+    # The fit's local Lambert term, with the view kept above the fitted horizon as the fitter keeps it.
+    lambert = stage.reflected_radiance_lights(brdf.Lambert(jnp.ones_like(spec_brdf.rho_d)), wi,
+                                              view_above_horizon(wo), irr)
+    return spec, lambert, wo, stage.subsurface_irradiance(wi, irr, eta, lit)
 
 
 def _reduced(y, valid, E, wo, eta, dt):
