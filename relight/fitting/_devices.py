@@ -43,9 +43,15 @@ def _placer(devs):
     return lambda x: jax.device_put(x, sharding)
 
 
+# Solver calls are never narrower than this many samples (unless ``chunk`` is): below it a padded lane
+# costs microseconds a step, while each other width would compile every rung's solver again.
+_MIN_CHUNK = 64
+
+
 def _chunk_size(P: int, chunk: int) -> int:
-    """Samples per solver call: ``chunk``, or for fewer samples the next power of two."""
-    return chunk if P >= chunk else 1 << max(int(P - 1).bit_length(), 3)
+    """Samples per solver call: ``chunk``, or for fewer samples the next power of two, at least
+    ``min(chunk, _MIN_CHUNK)`` (so the small fits of one program share its compilations)."""
+    return chunk if P >= chunk else max(min(chunk, _MIN_CHUNK), 1 << max(int(P - 1).bit_length(), 3))
 
 
 def _chunks_of(index, size):

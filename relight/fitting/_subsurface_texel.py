@@ -245,7 +245,10 @@ class Geometry(eqx.Module):
 
 
 def chunk_size(n_texels: int, L: int, K: int, C: int) -> int:
-    """Texels per chunk: n x C x L x (K + 1) near ``_CHUNK_ELEMENTS``; a power of two (few compilations)."""
+    """Texels per chunk: n x C x L x (K + 1) near ``_CHUNK_ELEMENTS``, a power of two, no more than the
+    power of two holding ``n_texels``. The solvers pass the capture's sample count, so every call of a fit
+    (every texel, the subset the ladder keeps, the straggler rounds) has one chunk shape: the vmapped Dogleg
+    takes seconds to compile, a padded lane milliseconds."""
     n = max(1, _CHUNK_ELEMENTS // max(C * L * (K + 1), 1))
     n = 1 << (n.bit_length() - 1)
     return int(max(1, min(n, 1 << max(int(n_texels - 1).bit_length(), 0))))
@@ -285,7 +288,8 @@ def fit_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wl, ln_m
     L, _, C = E.shape
     K = geo.index.shape[1]
     Es = jnp.asarray(E[lights], dt)
-    n = chunk_size(len(texels), len(lights), K, C)
+    # Sized by the capture's sample count, not len(texels): one program for every call of a fit.
+    n = chunk_size(E.shape[1], len(lights), K, C)
     u = unphys(ln_m0[texels], A0[texels], np.log(lo), np.log(hi))
     code = np.zeros((len(texels), C), np.int32)
     steps = np.zeros((len(texels), C), np.int32)
@@ -319,7 +323,8 @@ def eval_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wf, wh,
     L, _, C = E.shape
     K = geo.index.shape[1]
     Es = jnp.asarray(E[lights], dt)
-    n = chunk_size(len(texels), len(lights), K, C)
+    # Sized by the capture's sample count, not len(texels): one program for every call of a fit.
+    n = chunk_size(E.shape[1], len(lights), K, C)
     names = ("A", "sse_f", "sse_h", "n_f", "n_h", "sigma", "info", "err_h")
     out = {k: np.zeros((len(texels), C)) for k in names}
     out["err_h"] = np.zeros((len(texels), C, len(lights)))
