@@ -20,10 +20,6 @@ import numpy as np
 from _common import parser, save_figure
 
 
-def angular_error_deg(n, gt):
-    return np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
-
-
 def main(argv=None):
     ap = parser(__doc__)
     ap.add_argument("object_dir", type=Path)
@@ -37,6 +33,7 @@ def main(argv=None):
 
     import relight
     import relight.evaluation as ev
+    from relight.fitting import angular_error_deg
     from relight.io import diligent_capture, read_diligent
 
     d = read_diligent(a.object_dir)

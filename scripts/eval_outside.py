@@ -30,14 +30,11 @@ from _common import ROOT, machine, parser
 DATA = ROOT.parent / "shared" / "data"
 
 
-def _angular_deg(n, gt):
-    return np.degrees(np.arccos(np.clip(np.sum(n * gt, axis=-1), -1.0, 1.0)))
-
-
 def _score(data, train, held, fits, *, dark, saturation, front_only, baseline_valid):
     """Baseline and fitted held-out relative RMS for one capture; one row dict per (model, loss)."""
     import relight
     import relight.evaluation as ev
+    from relight.fitting import angular_error_deg
     from relight.io import diligent_capture
 
     vtrain = ev.observation_validity(data, train, dark=dark, saturation=saturation) if baseline_valid else None
@@ -60,13 +57,13 @@ def _score(data, train, held, fits, *, dark, saturation, front_only, baseline_va
                    model_fraction={m: float(np.mean(np.asarray(f.model) == i))
                                    for i, m in enumerate(relight.MODELS)})
         if data.normals_gt is not None:
-            row["normal_mean_deg"] = float(np.mean(_angular_deg(np.asarray(f.normal), data.normals_gt[data.mask])))
+            row["normal_mean_deg"] = float(np.mean(angular_error_deg(np.asarray(f.normal), data.normals_gt[data.mask])))
         rows.append(row)
         print(f"    {model:12s} {loss:7s} held-out {err:.4f} = {err / base:.2f}x baseline  ({seconds:.0f} s)",
               flush=True)
     out = dict(pixels=int(data.mask.sum()), held_out_observations=int(valid.sum()), baseline=base, fits=rows)
     if data.normals_gt is not None:
-        out["baseline_normal_mean_deg"] = float(np.mean(_angular_deg(normal, data.normals_gt[data.mask])))
+        out["baseline_normal_mean_deg"] = float(np.mean(angular_error_deg(normal, data.normals_gt[data.mask])))
     return out
 
 
