@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -27,6 +28,13 @@ def energy_radius(profile: AbstractProfile, fraction: float = 0.99) -> Float[Arr
         The radius in mm, [*pbatch, C]: one per profile and channel.
     """
     check("energy_radius", "fraction", fraction, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    return _bisect(profile, fraction)
+
+
+@eqx.filter_jit
+def _bisect(profile, fraction):
+    """:func:`energy_radius`' bisection as one program (called eagerly, a fresh ``fori_loop`` body was
+    traced and compiled again on every call)."""
     total = profile.total()
 
     def body(_, bounds):
