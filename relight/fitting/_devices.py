@@ -50,8 +50,8 @@ _MIN_CHUNK = 64
 
 def _chunk_size(P: int, chunk: int) -> int:
     """Samples per solver call: ``chunk``, or for fewer samples the next power of two, at least
-    ``min(chunk, _MIN_CHUNK)`` (so the small fits of one program share its compilations)."""
-    return chunk if P >= chunk else max(min(chunk, _MIN_CHUNK), 1 << max(int(P - 1).bit_length(), 3))
+    ``_MIN_CHUNK`` (so the small fits of one program share its compilations) and never more than ``chunk``."""
+    return chunk if P >= chunk else min(chunk, max(_MIN_CHUNK, 1 << int(P - 1).bit_length()))
 
 
 def _chunks_of(index, size):
