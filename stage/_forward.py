@@ -34,6 +34,11 @@ import brdf
 from brdf import safe_normalize
 
 
+def _traced(*trees) -> bool:
+    """True when any array leaf is a JAX tracer (under jax.grad, jvp, jit or vmap)."""
+    return any(isinstance(x, jax.core.Tracer) for t in trees for x in jax.tree_util.tree_leaves(t))
+
+
 def incident_light(
     position: Float[Array, "light 3"],
     intensity: Float[Array, "light channel"],

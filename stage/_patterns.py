@@ -30,9 +30,10 @@ from jaxtyping import Array, Bool, Float
 
 from ._camera import Camera
 from ._capture import Capture
+from ._forward import _traced
 from ._rig import Rig
 from ._sensor import Sensor
-from ._simulate import _chunks, _prepare, _traced
+from ._simulate import _chunks, _prepare
 
 __all__ = ["PatternCapture", "capture_patterns", "check_patterns", "gradient_patterns", "sense_patterns",
            "simulate_patterns"]

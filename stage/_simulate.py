@@ -37,7 +37,7 @@ from skin_bssrdf import SKIN_ETA
 
 from ._camera import Camera
 from ._capture import Capture
-from ._forward import reflected_radiance_lights, subsurface_exitance, subsurface_irradiance
+from ._forward import _traced, reflected_radiance_lights, subsurface_exitance, subsurface_irradiance
 from ._progress import Phase
 from ._rig import Rig
 from ._surface import Surface
@@ -137,11 +137,6 @@ def _take_samples(tree, P: int, idx):
     return jax.tree_util.tree_map(
         lambda x: x if shared(x) else (x[idx] if hasattr(x, "ndim") and x.ndim >= 1 and x.shape[0] == P else x),
         tree, is_leaf=shared)
-
-
-def _traced(*trees) -> bool:
-    """True when any array leaf is a JAX tracer (``simulate`` under jax.grad, jvp, jit or vmap)."""
-    return any(isinstance(x, jax.core.Tracer) for t in trees for x in jax.tree_util.tree_leaves(t))
 
 
 def _check_in_front(v: int, cam: Camera, positions) -> None:

@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from brdf import frame_from_normal_tangent
 
-from ._forward import to_local
+from ._forward import _traced, to_local
 from ._mesh import Mesh
 
 
@@ -53,7 +53,10 @@ class Surface(eqx.Module):
 
     def subset(self, index) -> Surface:
         """The samples ``index`` (an index array or boolean mask over P, concrete).
-        Works on traced fields too (under jax.grad / jit), as a gather."""
+        Works on traced fields too (under jax.grad / jit), as a gather; concrete fields are taken on the host
+        (:meth:`take`), so no gather is compiled for each index length."""
+        if not _traced(self):
+            return self.take(index)
         index = np.asarray(index)
         if index.dtype == bool:
             index = np.flatnonzero(index)
