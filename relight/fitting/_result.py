@@ -19,7 +19,7 @@ from jaxtyping import Array, Float, Int
 
 import stage
 
-from ..materials._maps import BLINN_PHONG, LadderBRDF, MaterialMaps, material_maps
+from ..materials._maps import BLINN_PHONG, SUBSURFACE, LadderBRDF, MaterialMaps, material_maps
 
 # The fitter's roughness prior, separate from the model's own floor
 # (brdf.ALPHA_MIN): below this no light stage resolves a GGX lobe.
@@ -165,6 +165,11 @@ class Fit(eqx.Module):
     AMBIGUOUS_RELATIVE_SIGMA: ClassVar[float] = 0.1
     # mfp_identified's bar on the 1-sigma of ln mfp: 25% relative.
     IDENTIFIED_SIGMA: ClassVar[float] = 0.25
+    # collapsed's bars. F0 below 1% is a refractive index under 1.22, below any real dielectric's (water 2%,
+    # skin 2.8%): the fit switched the lobe off. A roughness within 5% of its top (1) spreads the lobe over the
+    # hemisphere, where it trades places with the diffuse term.
+    COLLAPSED_F0: ClassVar[float] = 0.01
+    COLLAPSED_ALPHA: ClassVar[float] = 0.95
 
     @property
     def f0(self):
@@ -192,6 +197,20 @@ class Fit(eqx.Module):
         diffuse term at an equal or lower cost than the truth (docs/fit.md)."""
         rel = self.uncertainty[:, :3] / jnp.maximum(self.rho_d, 1e-6)
         return jnp.any(~(rel <= self.AMBIGUOUS_RELATIVE_SIGMA), axis=1) & (self.observed >= self.min_observed)
+
+    @property
+    def collapsed(self):
+        """[P] bool: samples of a lobed BRDF rung (Blinn-Phong, GGX, anisotropic GGX) whose lobe collapsed to
+        a bound: F0 below ``COLLAPSED_F0`` (1%) or a roughness at or above ``COLLAPSED_ALPHA`` (0.95).
+
+        A lobe collapses where the lights do not constrain it (no light near the texel's mirror
+        direction, or Lambertian data under a fixed lobed rung). Its parameters then sit where the fit's
+        sigmoid bounds flatten the Jacobian, so their 1-sigma reads small exactly where the value is least
+        known: this flag, not ``uncertainty``, is what marks them. Samples with too few observations are
+        ``failed``, not collapsed."""
+        lobed = (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
+        at_bound = (self.rho_s[:, 0] < self.COLLAPSED_F0) | (jnp.max(self.alpha, axis=1) >= self.COLLAPSED_ALPHA)
+        return lobed & at_bound & (self.observed >= self.min_observed)
 
     @property
     def unidentified(self):

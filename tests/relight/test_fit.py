@@ -145,15 +145,21 @@ def test_cauchy_loss_ignores_unmasked_shadows(scene):
     assert err["cauchy"] < 0.02
 
 
-def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
+def _half_lambertian(scene):
+    """A 1%-noise capture whose even samples are pure Lambertian (no lobe, not even Schlick's grazing term) and
+    odd ones Lambert + GGX; returns (capture, the Lambertian samples' mask)."""
     surface, rig, cam, lv, cv = scene
     P = surface.num_samples
     rho, f0, alpha = _truth(P, seed=8)
-    # Half the samples are pure Lambertian (no lobe, not even Schlick's grazing
-    # term), half Lambert + GGX.
     lam = np.arange(P) % 2 == 0
     truth = relight.material_maps(surface, rho, f0 * 4, alpha, model=np.where(lam, 0, 2)).brdf(include_diffuse=True)
-    cap = _noisy(stage.simulate(surface, rig, [cam], truth, lv, cv), 0.01, 9)
+    return _noisy(stage.simulate(surface, rig, [cam], truth, lv, cv), 0.01, 9), lam
+
+
+def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
+    surface = scene[0]
+    P = surface.num_samples
+    cap, lam = _half_lambertian(scene)
     calls = []
     f = fit(cap, surface, model="auto", options=FitOptions(progress=lambda *a: calls.append(a)))
     model = np.asarray(f.model)
@@ -172,6 +178,22 @@ def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
     assert np.all(model[~lam] != 0)
     assert np.mean(model[~lam] >= relight.MODELS.index("ggx")) > 0.6
     assert np.all(np.asarray(f.heldout) > 0) and np.all(np.isfinite(np.asarray(f.heldout)))
+    # The ladder leaves no lobe collapsed where a lobe was there to fit.
+    assert not np.any(np.asarray(f.collapsed)[~lam])
+
+
+@pytest.mark.parametrize("model", ["ggx", "blinn_phong"])
+def test_a_lobe_the_lights_do_not_constrain_is_flagged_collapsed(scene, model):
+    """Lambertian samples under a fixed lobed rung: the fit switches the lobe off (F0 to 0 or roughness to 1),
+    where the sigmoid bounds flatten the Jacobian, so J^T J's sigma cannot say so. ``Fit.collapsed`` does, on
+    nearly every such sample and on none of the glossy ones (F0 0.08-0.32); the report counts the same."""
+    surface = scene[0]
+    cap, lam = _half_lambertian(scene)
+    f = fit(cap, surface, model=model)
+    collapsed = np.asarray(f.collapsed)
+    assert np.mean(collapsed[lam]) > 0.9
+    assert not np.any(collapsed[~lam])
+    assert relight.fitting.fit_report(f, surface)["collapsed_fraction"] == pytest.approx(np.mean(collapsed))
 
 
 @pytest.mark.parametrize("solver", ["gn", "dogleg", "bfgs"])
