@@ -9,6 +9,7 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``convert``: a capture folder to a chunked Zarr v3 capture store, or back;
 * ``demo``: simulate, fit and relight the bundled head in one go;
 * ``view``: index.html, the results viewer (a self-contained page with an environment-rotation slider);
+* ``reseal``: accept hand edits of a result folder (its manifest rewritten over the files as they now are);
 * ``info``: versions, devices and bundled data.
 
 ``-q`` / ``--quiet`` hides progress bars, ``-qq`` the one-line summary too.
@@ -41,6 +42,7 @@ COMMANDS = (
     ("convert", "capture folder <-> capture store (.zarr, chunked Zarr v3)"),
     ("demo", "simulate, fit and relight the bundled textured head (built-in defaults)"),
     ("view", "write index.html, the results viewer, into a result folder"),
+    ("reseal", "accept hand edits of a result folder (rewrite its manifest)"),
     ("info", "versions, devices, bundled data and the shared data folder"),
 )
 NAMES = tuple(name for name, _ in COMMANDS)

@@ -17,6 +17,7 @@ from ._errors import writing as writing
 from ._format import format_version as format_version
 from ._lock import FolderLock as FolderLock
 from ._output import earlier_output as earlier_output
+from ._reseal import reseal as reseal
 from ._resultset import MANIFEST as MANIFEST
 from ._resultset import ResultSet as ResultSet
 from ._resultset import check_output_folder as check_output_folder
@@ -54,6 +55,7 @@ __all__ = [
     "is_result_set",
     "no_space_error",
     "open_result_set",
+    "reseal",
     "result_set",
     "swap_into",
     "write_manifest",

@@ -22,6 +22,13 @@ class ResultSetError(ValueError):
     ValueError, as every bad input file's error (``relight.io.ImageFormatError``)."""
 
 
+def edited_hint(folder: str | os.PathLike) -> str:
+    """The end of a reader's refusal of a set whose files differ from its manifest: how to accept a deliberate
+    edit of ``folder`` (:func:`relight.results.reseal`)."""
+    return (f"rerun the command that made it, or, if you edited it on purpose, accept the edit with "
+            f"`relight reseal {folder}` (relight.results.reseal)")
+
+
 class _Named:
     """str() is the message alone: an OSError with ``errno`` / ``filename`` set would print
     ``[Errno N] strerror: 'file'`` instead."""

@@ -57,7 +57,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from ._atomic import _umask, atomic_write_text
-from ._errors import ForeignFolderError, NoSpaceError, ResultSetError, _err, no_space_error
+from ._errors import ForeignFolderError, NoSpaceError, ResultSetError, _err, edited_hint, no_space_error
 from ._format import format_version
 from ._lock import FolderLock, _lock_path
 
@@ -214,7 +214,7 @@ class ResultSet:
             want = self.files.get(rel)
             if want is None:
                 raise ResultSetError(f"{path}: not listed in {self.folder / MANIFEST}: written by another run than "
-                                     "the rest of the set (or added by hand); rerun the command that made it")
+                                     f"the rest of the set (or added by hand); {edited_hint(self.folder)}")
             try:
                 size = path.stat().st_size
             except FileNotFoundError:
@@ -222,7 +222,7 @@ class ResultSet:
                                      ) from None
             if size != want.get("size") or file_digest(path) != want.get("sha256"):
                 raise ResultSetError(f"{path}: differs from the file {self.folder / MANIFEST} lists (size or "
-                                     "SHA-256): old and new files mixed, or an edit; rerun the command that made it")
+                                     f"SHA-256): old and new files mixed, or an edit; {edited_hint(self.folder)}")
         self.unchanged()
 
     def unchanged(self) -> None:

@@ -322,6 +322,34 @@ def test_folders_get_the_umask_mode(tmp_path, umask):
 # ------------------------------------------------------------------ the CLI on a 12-light dome
 
 
+def test_a_deliberate_edit_is_accepted_with_relight_reseal(tmp_path, capsys):
+    """A capture folder whose rig.json was edited by hand (new intensities after a recalibration): the reader's
+    refusal says how to accept the edit, `relight reseal` rewrites the manifest (listing the changed file and
+    recording the previous generation) and the capture then reads with the new intensities. A folder with no
+    manifest is refused by reseal too, naming it."""
+    rig = stage.geodesic_dome(0)
+    radiance = np.full((1, rig.num_lights, 4, 3), 0.5, np.float32)
+    folder = tmp_path / "cap"
+    write_capture(folder, radiance, rig, stage.camera_ring(1, 1300.0, fov_deg=11.0, width=8, height=8))
+    old = write_manifest(folder, "simulate", stage="test")
+    rig_json = folder / "rig.json"
+    doc = json.loads(rig_json.read_text())
+    doc["intensities"] = (2.0 * np.asarray(doc["intensities"])).tolist()
+    rig_json.write_text(json.dumps(doc))
+    with pytest.raises(ImageFormatError, match=rf"rig\.json: differs.*relight reseal {folder}"):
+        open_capture(folder)
+    assert main(["reseal", str(folder)]) == 0
+    assert capsys.readouterr().out.strip() == f"resealed {folder}/ (changed: rig.json)"
+    manifest = json.loads((folder / MANIFEST).read_text())
+    assert manifest["resealed"]["previous_generation"] == old["generation"] != manifest["generation"]
+    assert manifest["kind"] == "simulate" and manifest["stage"] == "test"
+    np.testing.assert_allclose(np.asarray(open_capture(folder).rig["intensities"]), 2.0 * np.asarray(rig.intensity),
+                               rtol=1e-6)
+    (tmp_path / "plain").mkdir()
+    assert main(["reseal", str(tmp_path / "plain"), "--quiet"]) == 1
+    assert f"{tmp_path / 'plain'}: no relight-set.json" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def dome12(tmp_path_factory):
     """A capture of the head under a 12-light dome: at most 6 lights see a texel, fewer than the 8 the fit
