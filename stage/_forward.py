@@ -39,6 +39,25 @@ def _traced(*trees) -> bool:
     return any(isinstance(x, jax.core.Tracer) for t in trees for x in jax.tree_util.tree_leaves(t))
 
 
+def widest_float(*trees):
+    """The widest floating dtype among the array leaves of ``trees`` (float32 when there is none), as JAX
+    holds it (float64 only under ``jax_enable_x64``): what a computation over them returns, so float64 inputs
+    are never narrowed silently."""
+    dts = [jnp.dtype(x.dtype) for t in trees for x in jax.tree_util.tree_leaves(t)
+           if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.floating)]
+    return jax.dtypes.canonicalize_dtype(max(dts, key=lambda d: d.itemsize, default=jnp.dtype(jnp.float32)))
+
+
+def as_float(tree, dtype):
+    """``tree`` with every floating array leaf in ``dtype`` (leaves already in it, and other leaves, as they are)."""
+    def cast(x):
+        if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.floating) and jnp.dtype(x.dtype) != dtype:
+            return x.astype(dtype)
+        return x
+
+    return jax.tree_util.tree_map(cast, tree)
+
+
 def incident_light(
     position: Float[Array, "light 3"],
     intensity: Float[Array, "light channel"],

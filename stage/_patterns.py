@@ -30,7 +30,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._camera import Camera
 from ._capture import Capture
-from ._forward import _traced
+from ._forward import _traced, as_float, widest_float
 from ._rig import Rig
 from ._sensor import Sensor
 from ._simulate import _chunks, _prepare
@@ -248,7 +248,7 @@ def _pattern_chunks(chunks, W, K: int):
 
 
 def simulate_patterns(surface, rig: Rig, cameras, material, light_visibility, camera_visibility, patterns, *,
-                      light_chunk: int = 64, sample_chunk: int = 1 << 14, dtype=jnp.float32, progress=None,
+                      light_chunk: int = 64, sample_chunk: int = 1 << 14, dtype=None, progress=None,
                       polarization: str | None = None, subsurface=None) -> PatternCapture:
     """Simulate a pattern capture directly, never holding the [V, L, P, C] OLAT capture.
 
@@ -269,12 +269,15 @@ def simulate_patterns(surface, rig: Rig, cameras, material, light_visibility, ca
     Returns:
         The ``PatternCapture`` [V, K, P, C].
     """
+    wide = widest_float(material, surface, rig, cameras, subsurface, patterns)
+    surface, rig, cameras, material = as_float((surface, rig, cameras, material), wide)
     cameras, lv, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                   camera_visibility, polarization, subsurface)
     if int(light_chunk) < 1 or int(sample_chunk) < 1:
         raise ValueError(f"simulate_patterns: light_chunk and sample_chunk must be >= 1, got {light_chunk}, "
                          f"{sample_chunk}")
     P, L = surface.num_samples, rig.num_lights
+    dtype = wide if dtype is None else dtype
     W = check_patterns(patterns, L, jnp.dtype(dtype) if _concrete(patterns) else None)
     K = W.shape[0]
     sc = P if subsurface is not None else min(int(sample_chunk), P)

@@ -37,7 +37,14 @@ from skin_bssrdf import SKIN_ETA
 
 from ._camera import Camera
 from ._capture import Capture
-from ._forward import _traced, reflected_radiance_lights, subsurface_exitance, subsurface_irradiance
+from ._forward import (
+    _traced,
+    as_float,
+    reflected_radiance_lights,
+    subsurface_exitance,
+    subsurface_irradiance,
+    widest_float,
+)
 from ._progress import Phase
 from ._rig import Rig
 from ._surface import Surface
@@ -259,7 +266,7 @@ def simulate_chunks(surface: Surface, rig: Rig, cameras, material: brdf.Abstract
 
 
 def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | None, light_visibility,
-             camera_visibility, *, light_chunk: int = 64, dtype=jnp.float32, progress=None,
+             camera_visibility, *, light_chunk: int = 64, dtype=None, progress=None,
              polarization: str | None = None, subsurface: Subsurface | None = None) -> Capture:
     """Simulate an OLAT capture of ``material`` (a brdf Module whose parameters
     have a leading sample axis [P, ...], or none) on ``surface`` under ``rig``.
@@ -279,6 +286,11 @@ def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | 
     Raises ValueError on mismatched shapes or a camera with every sample
     behind it (checked only when the camera and positions are concrete).
 
+    dtype: the radiance's dtype; None (default): the widest floating dtype of
+    the inputs (material, surface, rig, cameras, subsurface), so float64
+    material maps under ``jax_enable_x64`` give a float64 capture, never a
+    silently narrowed one.
+
     Differentiable: under ``jax.grad`` / ``jax.jvp`` / ``jax.jit`` the capture's
     radiance is a function of the material's parameters (the brdf Module's
     leaves), the surface's positions and shading frame, the rig's positions
@@ -288,8 +300,13 @@ def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | 
     the capture with jnp (the output is held twice for a moment); concrete
     calls fill a host buffer.
     """
+    # One float policy: the geometry, rig and cameras compute in the material's dtype where it is wider (the
+    # brdf kernels evaluate in their directions' dtype), and the output keeps it unless dtype says otherwise.
+    wide = widest_float(material, surface, rig, cameras, subsurface)
+    surface, rig, cameras, material = as_float((surface, rig, cameras, material), wide)
     cameras, light_visibility, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                                 camera_visibility, polarization, subsurface)
+    dtype = wide if dtype is None else jnp.dtype(dtype)
     P, L = surface.num_samples, rig.num_lights
     chunks = _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibility, cv, int(light_chunk), P,
                      progress)

@@ -1,6 +1,7 @@
 """Simulation checks: closed forms, polarisation, gradient illumination,
 texel/image agreement, subsurface, bad input."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -166,3 +167,21 @@ def test_progress_follows_the_one_protocol(scene):
     L = rig.num_lights
     assert calls[0] == ("simulate", 0, L) and calls[-1] == ("simulate", L, L)
     assert all(b[1] > a[1] for a, b in zip(calls, calls[1:], strict=False))
+
+
+def test_float64_maps_give_a_float64_capture_computed_in_float64(scene):
+    """One float policy (the widest floating input): float32 maps on the float32 geometry give a float32
+    capture; float64 maps give a float64 one equal (to 1e-12) to the capture of the geometry, rig and camera
+    cast to float64 by hand, and 1e-4 away from the float32 one (float32's rounding, not a narrowing)."""
+    surf, rig, cam, lv, cv = (scene[k] for k in ("surf", "rig", "cam", "lv", "cv"))
+    P = surf.num_samples
+    mat32 = _material(P, rho=0.6)
+    mat64 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), mat32)
+    cap32 = stage.simulate(surf, rig, [cam], mat32, lv, cv)
+    cap64 = stage.simulate(surf, rig, [cam], mat64, lv, cv)
+    assert cap32.radiance.dtype == jnp.float32 and cap64.radiance.dtype == jnp.float64
+    f64 = lambda t: jax.tree_util.tree_map(  # noqa: E731
+        lambda x: x.astype(jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x, t)
+    ref = stage.simulate(f64(surf), f64(rig), [f64(cam)], mat64, lv, cv)
+    np.testing.assert_allclose(np.asarray(cap64.radiance), np.asarray(ref.radiance), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(cap32.radiance), np.asarray(cap64.radiance), rtol=1e-4, atol=1e-6)
