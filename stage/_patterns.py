@@ -269,10 +269,12 @@ def simulate_patterns(surface, rig: Rig, cameras, material, light_visibility, ca
     Returns:
         The ``PatternCapture`` [V, K, P, C].
     """
-    wide = widest_float(material, surface, rig, cameras, subsurface, patterns)
-    surface, rig, cameras, material = as_float((surface, rig, cameras, material), wide)
     cameras, lv, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                   camera_visibility, polarization, subsurface)
+    # simulate's float policy (the patterns, light weights, do not set it); the capture records the rig and
+    # cameras as given.
+    wide = widest_float(material, surface, rig, cameras, subsurface)
+    surface_w, rig_w, cameras_w, terms = as_float((surface, rig, cameras, terms), wide)
     if int(light_chunk) < 1 or int(sample_chunk) < 1:
         raise ValueError(f"simulate_patterns: light_chunk and sample_chunk must be >= 1, got {light_chunk}, "
                          f"{sample_chunk}")
@@ -281,7 +283,8 @@ def simulate_patterns(surface, rig: Rig, cameras, material, light_visibility, ca
     W = check_patterns(patterns, L, jnp.dtype(dtype) if _concrete(patterns) else None)
     K = W.shape[0]
     sc = P if subsurface is not None else min(int(sample_chunk), P)
-    chunks = _chunks(surface, rig, cameras, terms, sss_weight, subsurface, lv, cv, int(light_chunk), sc, progress)
+    chunks = _chunks(surface_w, rig_w, cameras_w, terms, sss_weight, subsurface, lv, cv, int(light_chunk), sc,
+                     progress)
     blocks = _pattern_chunks(chunks, W, K)
     if _traced(surface, rig, cameras, material, subsurface, W):
         views_r, views_m = [[] for _ in cameras], [[] for _ in cameras]

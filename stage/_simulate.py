@@ -300,16 +300,17 @@ def simulate(surface: Surface, rig: Rig, cameras, material: brdf.AbstractBRDF | 
     the capture with jnp (the output is held twice for a moment); concrete
     calls fill a host buffer.
     """
-    # One float policy: the geometry, rig and cameras compute in the material's dtype where it is wider (the
-    # brdf kernels evaluate in their directions' dtype), and the output keeps it unless dtype says otherwise.
-    wide = widest_float(material, surface, rig, cameras, subsurface)
-    surface, rig, cameras, material = as_float((surface, rig, cameras, material), wide)
     cameras, light_visibility, cv, terms, sss_weight = _prepare(surface, rig, cameras, material, light_visibility,
                                                                 camera_visibility, polarization, subsurface)
+    # One float policy: the geometry, rig and cameras compute in the material's dtype where it is wider (the
+    # brdf kernels evaluate in their directions' dtype), and the radiance keeps it unless dtype says otherwise.
+    # The capture records the rig and cameras as given.
+    wide = widest_float(material, surface, rig, cameras, subsurface)
+    surface_w, rig_w, cameras_w, terms = as_float((surface, rig, cameras, terms), wide)
     dtype = wide if dtype is None else jnp.dtype(dtype)
     P, L = surface.num_samples, rig.num_lights
-    chunks = _chunks(surface, rig, cameras, terms, sss_weight, subsurface, light_visibility, cv, int(light_chunk), P,
-                     progress)
+    chunks = _chunks(surface_w, rig_w, cameras_w, terms, sss_weight, subsurface, light_visibility, cv,
+                     int(light_chunk), P, progress)
     if _traced(surface, rig, cameras, material, subsurface):
         # Under a transformation: assemble with jnp (JAX owns the buffers, the
         # capture is differentiable). The sample axis is not chunked here, so
