@@ -26,6 +26,19 @@ if TYPE_CHECKING:  # imported where used: a memory benchmark's parent process mu
 
 ROOT = Path(__file__).resolve().parent.parent
 FIG = ROOT / "docs" / "figures"
+DILIGENT = ROOT.parent / "shared" / "data" / "diligent"
+
+
+def diligent_objects(names: str):
+    """(name, relight.io.DiligentData) for each comma-separated DiLiGenT object found under DILIGENT; a
+    missing one is said and skipped."""
+    from relight.io import read_diligent
+
+    for name in names.split(","):
+        if not (DILIGENT / name).is_dir():
+            print(f"{name}: not found under {DILIGENT}, skipped")
+            continue
+        yield name, read_diligent(DILIGENT / name)
 
 # The per-frame sensor of pattern training and of its chart (1/60 s frames): docs/patterns.md.
 PATTERN_SENSOR = dict(exposure=2000.0, read_noise=5.0, shot_noise=True)

@@ -15,9 +15,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-from _common import FIG, ROOT, machine, parser
+from _common import FIG, diligent_objects, machine, parser
 
-DATA = ROOT.parent / "shared" / "data" / "diligent"
 FLAGS = ("failed", "ambiguous", "unresolved", "collapsed")
 
 
@@ -30,14 +29,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     from relight.fitting import angular_error_deg, fit_diligent
-    from relight.io import read_diligent
 
     rows = []
-    for obj in a.objects.split(","):
-        if not (DATA / obj).is_dir():
-            print(f"{obj}: not found under {DATA}, skipped")
-            continue
-        d = read_diligent(DATA / obj)
+    for obj, d in diligent_objects(a.objects):
         keep = np.zeros_like(d.mask)
         keep[:: a.subsample, :: a.subsample] = True
         gt = d.normals_gt[d.mask & keep].astype(np.float64)

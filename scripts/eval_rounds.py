@@ -16,9 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import FIG, ROOT, machine, parser
-
-DATA = ROOT.parent / "shared" / "data" / "diligent"
+from _common import FIG, diligent_objects, machine, parser
 
 
 def main(argv=None):
@@ -31,14 +29,10 @@ def main(argv=None):
 
     import relight
     from relight.fitting import FitOptions, angular_error_deg
-    from relight.io import diligent_capture, read_diligent
+    from relight.io import diligent_capture
 
     rows = []
-    for obj in a.objects.split(","):
-        if not (DATA / obj).is_dir():
-            print(f"{obj}: not found under {DATA}, skipped")
-            continue
-        d = read_diligent(DATA / obj)
+    for obj, d in diligent_objects(a.objects):
         cap, surface = diligent_capture(d)
         gt = d.normals_gt[d.mask]
         for model in a.models.split(","):
