@@ -6,6 +6,7 @@ OLAT forward model (``incident_light``, ``to_local``, ``reflected_radiance``,
 ``subsurface_irradiance``, ``subsurface_exitance``) lives here and is shared
 by simulation, fitting and rendering. See docs/stage.md."""
 
+from ._calib_colmap import read_colmap as read_colmap
 from ._camera import MAX_CAMERA_PIXELS as MAX_CAMERA_PIXELS
 from ._camera import Camera as Camera
 from ._camera import camera_from_dict as camera_from_dict
