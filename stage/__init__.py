@@ -7,6 +7,7 @@ OLAT forward model (``incident_light``, ``to_local``, ``reflected_radiance``,
 by simulation, fitting and rendering. See docs/stage.md."""
 
 from ._calib_colmap import read_colmap as read_colmap
+from ._calib_metashape import read_metashape_xml as read_metashape_xml
 from ._calib_opencv import read_opencv_calibration as read_opencv_calibration
 from ._camera import MAX_CAMERA_PIXELS as MAX_CAMERA_PIXELS
 from ._camera import Camera as Camera
