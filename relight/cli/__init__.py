@@ -43,6 +43,7 @@ COMMANDS = (
     ("demo", "simulate, fit and relight the bundled textured head (built-in defaults)"),
     ("view", "write index.html, the results viewer, into a result folder"),
     ("reseal", "accept hand edits of a result folder (rewrite its manifest)"),
+    ("cameras", "import a camera calibration (COLMAP, OpenCV, Metashape) as cameras.json"),
     ("info", "versions, devices, bundled data and the shared data folder"),
 )
 NAMES = tuple(name for name, _ in COMMANDS)
