@@ -55,7 +55,7 @@ from ._camera import Camera
 
 # Calibration terms that OpenCV's five coefficients cannot hold; a file with any of them non-zero is refused.
 _UNMAPPED = ("k4", "p3", "p4")
-# PhotoScan before 1.4 wrote fx / fy / skew and an absolute principal point: another model, refused by name.
+# Older PhotoScan exports wrote fx / fy / skew with an absolute principal point: another model, refused by name.
 _OLD_TERMS = ("fx", "fy", "skew")
 
 
@@ -113,8 +113,8 @@ def _sensor(sensor: ET.Element, path: Path) -> tuple[np.ndarray, np.ndarray, int
         raise ValueError(f"{where}: missing field 'calibration' (the sensor was never calibrated or aligned)")
     for term in _OLD_TERMS:
         if calib.find(term) is not None:
-            raise ValueError(f"{where}: field {term!r}: PhotoScan's calibration before version 1.4 (fx, fy, skew, "
-                             "an absolute principal point) is not supported; export again from Metashape")
+            raise ValueError(f"{where}: field {term!r}: an older PhotoScan calibration (fx, fy, skew, an absolute "
+                             "principal point) is not supported; export again from Metashape")
     size = _size(calib.find("resolution"), where) or _size(sensor.find("resolution"), where)
     other = _size(sensor.find("resolution"), where)
     if size is None:
@@ -184,7 +184,7 @@ def read_metashape_xml(path, mm_per_unit: float | str) -> dict[str, Camera]:
         FileNotFoundError naming the path. ValueError naming the file, the camera or sensor and the field: XML
         that does not parse or is not a Metashape document, several chunks, a sensor that is not a frame
         camera (fisheye, spherical, cylindrical, RPC: named with its id and label) or holds K4 / P3 / P4 or
-        PhotoScan's old fx / fy terms, a camera whose sensor is missing, a label listed twice, no aligned
+        an older PhotoScan's fx / fy terms, a camera whose sensor is missing, a label listed twice, no aligned
         camera, and whatever ``stage.camera_from_dict`` refuses.
 
     Warns:

@@ -153,7 +153,7 @@ def test_unaligned_cameras_are_skipped_with_a_warning(tmp_path):
     (dict(SENSOR, type="spherical"), r"sensor '0' \('lens 0'\): sensor type 'spherical' is not supported"),
     (dict(SENSOR, k4=0.001), r"sensor '0' \('lens 0'\): field 'k4' is not zero"),
     (dict(SENSOR, p3=0.1), r"sensor '0' \('lens 0'\): field 'p3' is not zero"),
-    (dict(SENSOR, fx=1500.0), r"sensor '0' \('lens 0'\): field 'fx': PhotoScan's calibration"),
+    (dict(SENSOR, fx=1500.0), r"sensor '0' \('lens 0'\): field 'fx': an older PhotoScan calibration"),
     ({k: v for k, v in SENSOR.items() if k != "f"}, r"sensor '0' \('lens 0'\): missing field 'f'"),
     (dict(SENSOR, extra="<k2>two</k2>"), r"sensor '0' \('lens 0'\): field 'k2' must be a number"),
     (dict(SENSOR, f=-5.0), r"camera 'a': field 'K' needs positive focal lengths"),
