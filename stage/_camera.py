@@ -1,22 +1,42 @@
-"""Pinhole and orthographic cameras in the OpenCV convention.
+"""Pinhole and orthographic cameras, and their files in the OpenCV convention.
 
 A world point X maps to camera coordinates X_c = R X + t (x right, y down,
-z forward) and to pixel (u, v) = (fx x/z + cx, fy y/z + cy) for a pinhole,
-(fx x + cx, fy y + cy) for an orthographic camera (fx, fy in pixels per mm);
-pixel centres are at integer + 0.5. Lengths in millimetres.
+z forward), to normalised coordinates (x, y) = (X_c / Z_c, Y_c / Z_c), through
+OpenCV's lens distortion (k1, k2, p1, p2, k3; :func:`distort`) and to pixel
+(u, v) = K (x_d, y_d, 1) for a pinhole, (fx X_c + cx, fy Y_c + cy) for an
+orthographic camera (fx, fy in pixels per mm; no distortion). Lengths in
+millimetres.
+
+Pixel centres: a ``Camera``'s K is in continuous image coordinates, where
+pixel (i, j) covers [i, i + 1) x [j, j + 1) and the top-left pixel's centre is
+(0.5, 0.5) (COLMAP's and pbrt's convention: scaling an image scales K). A
+camera *file* follows OpenCV, whose top-left pixel centre is (0, 0): a centred
+256-pixel camera has cx = 127.5 in the file and 128 in the ``Camera``.
+``camera_from_dict`` and ``camera_to_dict`` convert, by the file's
+``convention``: "opencv" (the default: centres at integers) or "colmap"
+(centres at integer + 0.5, K as the Camera holds it); any other value is an
+error naming the field.
 
 One JSON schema for a camera, shared by camera files, capture folders and map
 sets (``camera_to_dict`` / ``camera_from_dict``)::
 
     {"name": "cam000", "model": "pinhole" | "orthographic", "width": W, "height": H,
-     "K": 3x3, "R": 3x3, "t": 3, "convention": "opencv", "units": "mm"}
+     "K": 3x3, "R": 3x3, "t": 3, "distortion": [k1, k2, p1, p2, k3],
+     "convention": "opencv", "units": "mm"}
 
+``distortion`` is optional (none) and lists 4 (k1, k2, p1, p2) or 5
+coefficients, or is an object with any of those keys (0 when missing);
+OpenCV's longer rational and thin-prism models are refused. It is written
+only when non-zero.
 A camera file (``save_cameras`` / ``load_cameras``) is
-``{"convention": "opencv", "units": "mm", "cameras": [camera, ...]}``.
-``load_cameras`` also reads a bare list of cameras (a capture folder's
-``cameras.json``, ``relight.io.write_capture``), and camera entries without the
-per-camera ``convention`` / ``units`` keys (files written before they were
-added); when present they must say ``"opencv"`` and ``"mm"``.
+``{"convention": "opencv", "units": "mm", "cameras": [camera, ...]}``; a
+file-level ``convention`` is the default of its cameras. ``load_cameras`` also
+reads a bare list of cameras (a capture folder's ``cameras.json``,
+``relight.io.write_capture``), and camera entries without the per-camera
+``convention`` / ``units`` keys. Units must be "mm".
+
+Camera files written before this convention was fixed (CHANGELOG, "Unreleased") hold K with the
+continuous centres under "opencv": set their ``convention`` to "colmap" to read them as written.
 """
 
 from __future__ import annotations
@@ -50,11 +70,12 @@ class Camera(eqx.Module):
     width: int = eqx.field(static=True)
     height: int = eqx.field(static=True)
     orthographic: bool = eqx.field(static=True, default=False)
+    dist: Float[Array, " 5"] = eqx.field(default_factory=lambda: jnp.zeros(5, jnp.float32))
 
     def __check_init__(self):
-        if self.K.shape != (3, 3) or self.R.shape != (3, 3) or self.t.shape != (3,):
-            raise ValueError(f"Camera needs K [3,3], R [3,3], t [3]; "
-                             f"got {self.K.shape}, {self.R.shape}, {self.t.shape}")
+        if self.K.shape != (3, 3) or self.R.shape != (3, 3) or self.t.shape != (3,) or self.dist.shape != (5,):
+            raise ValueError(f"Camera needs K [3,3], R [3,3], t [3], dist [5]; "
+                             f"got {self.K.shape}, {self.R.shape}, {self.t.shape}, {self.dist.shape}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"Camera resolution must be positive, got {self.width}x{self.height}")
         if self.width * self.height > MAX_CAMERA_PIXELS:
@@ -66,6 +87,14 @@ class Camera(eqx.Module):
             return
         if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
             raise ValueError(f"Camera argument 'K': focal lengths fx = {fx}, fy = {fy} must be positive and finite")
+        try:
+            dist = np.asarray(self.dist, np.float64)
+        except jax.errors.TracerArrayConversionError:
+            return
+        if not np.all(np.isfinite(dist)):
+            raise ValueError(f"Camera argument 'dist': coefficients must be finite, got {dist.tolist()}")
+        if self.orthographic and np.any(dist != 0):
+            raise ValueError("Camera argument 'dist': an orthographic camera takes no lens distortion")
 
     @property
     def center(self) -> Float[Array, " 3"]:
@@ -96,15 +125,18 @@ class Camera(eqx.Module):
 
     @eqx.filter_jit
     def project(self, points: Float[ArrayLike, "*batch 3"]) -> tuple[Float[Array, "*batch 2"], Float[Array, " *batch"]]:
-        """Pixel coordinates and depth (camera z, mm) of world points."""
+        """Pixel coordinates and depth (camera z, mm) of world points, through the lens distortion
+        (:func:`distort`). A point beyond the distortion's monotonic range (where the polynomial folds back
+        into the image) maps to (-1, -1), outside every image."""
         xc = self.to_camera(points)
         _, K, _, _ = self._cast(xc)
         z = xc[..., 2]
         if self.orthographic:
             xy1 = jnp.concatenate([xc[..., :2], jnp.ones_like(xc[..., 2:3])], axis=-1)
             return (xy1 @ K.T)[..., :2], z
-        uvw = xc @ K.T
-        pix = safe_div(uvw[..., :2], uvw[..., 2:3])
+        xy, ok = distort(safe_div(xc[..., :2], xc[..., 2:3]), self.dist.astype(xc.dtype))
+        xy1 = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], axis=-1)
+        pix = jnp.where(ok[..., None], (xy1 @ K.T)[..., :2], -1.0)
         return pix, z
 
     def rays(self, pixels: Float[ArrayLike, "*batch 2"]) -> tuple[Float[Array, "*origin 3"], Float[Array, "*batch 3"]]:
@@ -114,6 +146,8 @@ class Camera(eqx.Module):
         pixels, K, R, t = self._cast(pixels)
         ones = jnp.ones(pixels.shape[:-1] + (1,), pixels.dtype)
         d_cam = jnp.concatenate([pixels, ones], axis=-1) @ jnp.linalg.inv(K).T
+        if not (self.orthographic or _is_zero(self.dist)):
+            d_cam = jnp.concatenate([undistort(d_cam[..., :2], self.dist.astype(d_cam.dtype)), ones], axis=-1)
         if self.orthographic:
             xc = jnp.concatenate([d_cam[..., :2], jnp.zeros_like(ones)], axis=-1)
             origins = (xc - t.reshape((1,) * (xc.ndim - 1) + (3,))) @ R
@@ -139,6 +173,72 @@ class Camera(eqx.Module):
         _, K, _, _ = self._cast(z)
         inv = 1.0 / (K[0, 0] * K[1, 1])
         return inv * jnp.ones_like(z) if self.orthographic else inv * z * z
+
+
+def _is_zero(a) -> bool:
+    """Whether ``a`` is a concrete all-zero array (False for a tracer): lets eager code skip a no-op."""
+    try:
+        return not np.any(np.asarray(a))
+    except jax.errors.TracerArrayConversionError:
+        return False
+
+
+# Fixed-point iterations of undistort: OpenCV's undistortPoints runs 5 by default; 20 bring a 10%
+# barrel distortion at the image corner to float32 precision.
+UNDISTORT_ITERATIONS = 20
+
+
+def distort(xy: Float[Array, "*batch 2"], dist: Float[Array, " 5"]) -> tuple[Float[Array, "*batch 2"], Array]:
+    """OpenCV's lens distortion (Brown-Conrady, ``cv2.projectPoints``): normalised camera coordinates
+    (x, y) = (X/Z, Y/Z) to distorted ones, x_d = x L + 2 p1 x y + p2 (r^2 + 2 x^2),
+    y_d = y L + p1 (r^2 + 2 y^2) + 2 p2 x y with L = 1 + k1 r^2 + k2 r^4 + k3 r^6.
+
+    Args:
+        xy: normalised coordinates [..., 2] (unitless).
+        dist: (k1, k2, p1, p2, k3), OpenCV's order.
+
+    Returns:
+        ``(xy_d, ok)``: the distorted coordinates, and False where the radial map r L(r) has stopped
+        increasing (d(r L)/dr = 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 <= 0): there the polynomial folds points
+        from outside the field of view back into it, and a caller must not trust the pixel.
+
+    References:
+        Brown 1966, "Decentering distortion of lenses"; the OpenCV calib3d documentation (pinhole model).
+    """
+    k1, k2, p1, p2, k3 = (dist[i] for i in range(5))
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    ok = 1 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3)) > 0
+    return jnp.stack([xd, yd], axis=-1), ok
+
+
+def undistort(xy_d: Float[Array, "*batch 2"], dist: Float[Array, " 5"]) -> Float[Array, "*batch 2"]:
+    """The inverse of :func:`distort` by fixed-point iteration (as ``cv2.undistortPoints``):
+    x <- (x_d - tangential(x)) / L(x), UNDISTORT_ITERATIONS times from x = x_d. Exact for zero
+    distortion; within the monotonic range it converges for the distortions of real lenses.
+
+    Args:
+        xy_d: distorted normalised coordinates [..., 2].
+        dist: (k1, k2, p1, p2, k3).
+
+    Returns:
+        The undistorted normalised coordinates [..., 2].
+    """
+    k1, k2, p1, p2, k3 = (dist[i] for i in range(5))
+
+    def step(_, xy):
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        tx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        ty = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        inv = safe_div(jnp.ones_like(radial), radial)
+        return jnp.stack([(xy_d[..., 0] - tx) * inv, (xy_d[..., 1] - ty) * inv], axis=-1)
+
+    return jax.lax.fori_loop(0, UNDISTORT_ITERATIONS, step, xy_d)
 
 
 def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg: float = 30.0,
@@ -206,8 +306,14 @@ def camera_ring(n: int, radius: float, elevation_mm: float = 0.0, target=(0.0, 0
 MAX_CAMERA_PIXELS = 2**28
 
 CONVENTION = "opencv"
+# The pixel-centre offset of each accepted file convention: K_camera = K_file + offset on cx and cy.
+CONVENTIONS = {"opencv": 0.5, "colmap": 0.0}
 UNITS = "mm"
 MODELS = ("pinhole", "orthographic")
+DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")
+# Names other tools give the distortion coefficients, refused in a camera dict rather than ignored.
+_DISTORTION_ALIASES = frozenset({"dist", "D", "dist_coeffs", "distCoeffs", "distortion_coefficients",
+                                 *DISTORTION_KEYS})
 # R must be a rotation to this tolerance: float32 matrices written as float64
 # are orthonormal to ~1e-7, so 1e-4 admits them and refuses a scaled or
 # sheared matrix.
@@ -219,16 +325,22 @@ def camera_to_dict(camera: Camera, name: str | None = None) -> dict:
     """The camera as a JSON-ready dict (module docstring schema; lists of
     float64, so ``json.dumps`` takes it as it is). ``name`` is stored when given."""
     out = {} if name is None else {"name": str(name)}
+    K = np.asarray(camera.K, np.float64).copy()
+    K[:2, 2] -= CONVENTIONS[CONVENTION]
     out.update({"model": "orthographic" if camera.orthographic else "pinhole", "width": int(camera.width),
-                "height": int(camera.height), "K": np.asarray(camera.K, np.float64).tolist(),
+                "height": int(camera.height), "K": K.tolist(),
                 "R": np.asarray(camera.R, np.float64).tolist(), "t": np.asarray(camera.t, np.float64).tolist(),
                 "convention": CONVENTION, "units": UNITS})
+    dist = np.asarray(camera.dist, np.float64)
+    if np.any(dist != 0):
+        out["distortion"] = dist.tolist()
     return out
 
 
-def camera_from_dict(doc: object, where: str = "camera") -> Camera:
+def camera_from_dict(doc: object, where: str = "camera", convention: str = CONVENTION) -> Camera:
     """A camera from its dict (``camera_to_dict``'s schema; the ``convention`` /
-    ``units`` / ``name`` keys optional). Raises ValueError starting with
+    ``units`` / ``name`` / ``distortion`` keys optional; ``convention`` is the default of
+    a dict without its own, module docstring). Raises ValueError starting with
     ``where`` (e.g. ``"cameras.json: camera 2"``) and naming the field when one
     is missing or malformed: K, R, t must be finite with shapes 3x3, 3x3, 3; K
     upper triangular with positive focal lengths and last row [0, 0, 1]; R a
@@ -267,11 +379,52 @@ def camera_from_dict(doc: object, where: str = "camera") -> Camera:
     model = doc.get("model", "pinhole")
     if model not in MODELS:
         raise ValueError(f"{where}: field 'model' must be 'pinhole' or 'orthographic', got {model!r}")
-    for name, expected in (("convention", CONVENTION), ("units", UNITS)):
-        if name in doc and doc[name] != expected:
-            raise ValueError(f"{where}: field {name!r} must be {expected!r}, got {doc[name]!r}")
+    offset, dist = _file_frame(doc, where, convention)
+    if model == "orthographic" and np.any(dist != 0):
+        raise ValueError(f"{where}: field 'distortion' must be zero for an orthographic camera")
+    K = K.copy()
+    K[:2, 2] += offset
     return Camera(K=jnp.asarray(K, jnp.float32), R=jnp.asarray(R, jnp.float32), t=jnp.asarray(t, jnp.float32),
-                  width=int(w), height=int(h), orthographic=model == "orthographic")
+                  width=int(w), height=int(h), orthographic=model == "orthographic",
+                  dist=jnp.asarray(dist, jnp.float32))
+
+
+def _file_frame(doc: Mapping, where: str, convention: str) -> tuple[float, np.ndarray]:
+    """A camera dict's ``units`` (must be mm), pixel-centre offset (by its ``convention``, else
+    ``convention``) and distortion (:func:`_distortion_field`)."""
+    if "units" in doc and doc["units"] != UNITS:
+        raise ValueError(f"{where}: field 'units' must be {UNITS!r}, got {doc['units']!r}")
+    misnamed = sorted(k for k in doc if k in _DISTORTION_ALIASES)
+    if misnamed:  # a lens recorded under another tool's name would otherwise be dropped without a word
+        raise ValueError(f"{where}: field {misnamed[0]!r} is not read; lens distortion goes in 'distortion' "
+                         "(OpenCV's [k1, k2, p1, p2, k3])")
+    convention = doc.get("convention", convention)
+    if convention not in CONVENTIONS:
+        raise ValueError(f"{where}: field 'convention' must be one of {sorted(CONVENTIONS)} (\"opencv\": the "
+                         f"top-left pixel's centre at (0, 0); \"colmap\": at (0.5, 0.5)), got {convention!r}")
+    return CONVENTIONS[convention], _distortion_field(doc.get("distortion"), where)
+
+
+def _distortion_field(value, where: str) -> np.ndarray:
+    """The ``distortion`` field as OpenCV's five (k1, k2, p1, p2, k3): None (zeros), 4 or 5 finite
+    coefficients (k3 = 0 when 4), or an object with any of those keys."""
+    if value is None:
+        return np.zeros(5)
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - set(DISTORTION_KEYS))
+        if unknown:
+            raise ValueError(f"{where}: field 'distortion' has unknown keys {unknown} (OpenCV's {DISTORTION_KEYS})")
+        value = [value.get(k, 0.0) for k in DISTORTION_KEYS]
+    try:
+        d = np.asarray(value, np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: field 'distortion' must be numbers ({exc})") from None
+    if d.size not in (4, 5):
+        raise ValueError(f"{where}: field 'distortion' must list OpenCV's [k1, k2, p1, p2(, k3)], got {d.size} "
+                         "coefficients; the rational and thin-prism models (8, 12, 14) are not supported")
+    if not np.all(np.abs(d) <= _FLOAT32_MAX):
+        raise ValueError(f"{where}: field 'distortion' must be finite, got {d.tolist()}")
+    return np.concatenate([d, np.zeros(5 - d.size)])
 
 
 def save_cameras(path, cameras, names=None) -> Path:
@@ -299,11 +452,13 @@ def load_cameras(path) -> tuple[Camera, ...]:
         cams = doc.get("cameras")
         if not isinstance(cams, list) or not cams:
             raise ValueError(f"{path}: expected a non-empty 'cameras' list")
-        for name, expected in (("convention", CONVENTION), ("units", UNITS)):
-            if name in doc and doc[name] != expected:
-                raise ValueError(f"{path}: field {name!r} must be {expected!r}, got {doc[name]!r}")
+        if "units" in doc and doc["units"] != UNITS:
+            raise ValueError(f"{path}: field 'units' must be {UNITS!r}, got {doc['units']!r}")
+        convention = doc.get("convention", CONVENTION)
+        if convention not in CONVENTIONS:
+            raise ValueError(f"{path}: field 'convention' must be one of {sorted(CONVENTIONS)}, got {convention!r}")
     elif isinstance(doc, list) and doc:
-        cams = doc
+        cams, convention = doc, CONVENTION
     else:
         raise ValueError(f"{path}: expected an object with a non-empty 'cameras' list, or a non-empty list of cameras")
-    return tuple(camera_from_dict(c, f"{path}: camera {i}") for i, c in enumerate(cams))
+    return tuple(camera_from_dict(c, f"{path}: camera {i}", convention) for i, c in enumerate(cams))

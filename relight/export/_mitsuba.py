@@ -70,6 +70,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -175,6 +176,16 @@ def _bitmap(parent, name: str, filename: str, raw: bool = True):
     return tex
 
 
+def _check_camera(camera) -> None:
+    """Mitsuba's perspective sensor is a pinhole without lens distortion: an orthographic camera is refused, a
+    distortion left out with a warning."""
+    if getattr(camera, "orthographic", False):
+        raise ValueError("write_mitsuba_scene: orthographic cameras are not supported (use a pinhole camera)")
+    if np.any(np.asarray(camera.dist) != 0):
+        warnings.warn("write_mitsuba_scene: Mitsuba's perspective sensor has no lens distortion; the scene's "
+                      "camera is the pinhole part of the camera (its renders are the undistorted view)", stacklevel=3)
+
+
 def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, envmap_path, *,
                         spp: int = 64, max_depth: int = 3, envmap_scale: float = 1.0,
                         terminator_shadowing: bool = False, match_envmap: bool = True,
@@ -190,7 +201,7 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
             textures would come out v-flipped), so a .ply is read with
             ``stage.load_mesh`` and written as ``mesh.obj``.
         textures: a ``relight.io.TextureSet`` (``relight.io.read_maps``).
-        camera: a pinhole ``stage.Camera``.
+        camera: a pinhole ``stage.Camera`` (a lens distortion is left out, with a warning).
         envmap_path: lat-long .hdr/.exr environment map (copied into the folder).
         spp, max_depth: integrator settings (``path``; depth 3 = direct light
             plus one bounce, enough for a single head).
@@ -217,8 +228,7 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     envmap_path = Path(envmap_path)
     if not envmap_path.is_file():
         raise FileNotFoundError(f"{envmap_path}: environment map not found")
-    if getattr(camera, "orthographic", False):
-        raise ValueError("write_mitsuba_scene: orthographic cameras are not supported (use a pinhole camera)")
+    _check_camera(camera)
     folder.mkdir(parents=True, exist_ok=True)
     tex_dir = folder / "mitsuba"
     tex_dir.mkdir(exist_ok=True)

@@ -45,7 +45,6 @@ FORMAT = "relight-photos"
 VERSION = 1
 _DEFAULT_IMAGES = "{camera}/l{light:03d}.exr"
 _ENCODINGS = ("linear", "srgb")
-_DISTORTION = ("k1", "k2", "p1", "p2", "k3")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,24 +107,10 @@ def _png_unit(raw: np.ndarray) -> np.ndarray:
     return raw.astype(np.float64) / (65535.0 if raw.dtype == np.uint16 else 255.0)
 
 
-def _distortion(entry: Mapping, where: str) -> dict | None:
-    d = entry.get("distortion")
-    if d is None:
-        return None
-    if isinstance(d, Mapping):
-        vals = [d.get(k, 0.0) for k in _DISTORTION]
-    else:
-        vals = list(d) if isinstance(d, (list, tuple)) else [d]
-        if len(vals) not in (4, 5):
-            raise _err(where, f"field 'distortion' must be OpenCV [k1, k2, p1, p2(, k3)], got {d!r}")
-        vals = vals + [0.0] * (5 - len(vals))
-    try:
-        arr = np.asarray(vals, np.float64)
-    except (TypeError, ValueError):
-        raise _err(where, f"field 'distortion' must be numbers, got {d!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise _err(where, "field 'distortion' must be finite")
-    return dict(zip(_DISTORTION, arr.tolist(), strict=True))
+def _distortion(camera: stage.Camera) -> dict | None:
+    """The camera's OpenCV distortion as {k1, k2, p1, p2, k3}, or None when it has none."""
+    d = np.asarray(camera.dist, np.float64)
+    return dict(zip(stage.DISTORTION_KEYS, d.tolist(), strict=True)) if np.any(d != 0) else None
 
 
 def _rig_spec(spec: object, where) -> Mapping:
@@ -187,7 +172,7 @@ class PhotoCapture:
         if len(set(self.names)) != len(self.names):
             raise _err(cam_path, f"camera names must be distinct, got {self.names}")
         cams = [stage.camera_from_dict(e, f"{cam_path}: camera {i}") for i, e in enumerate(entries)]
-        self.distortion = [_distortion(e, f"{cam_path}: camera {i}") for i, e in enumerate(entries)]
+        self.distortion = [_distortion(c) for c in cams]
         # the views
         defaults = {k: info[k] for k in ("images", "encoding", "exposure", "gain", "saturation", "mask") if k in info}
         views = info.get("views")

@@ -268,7 +268,9 @@ def scaled_camera(camera: stage.Camera, size: int) -> stage.Camera:
         return camera
     scale = np.diag([w / camera.width, h / camera.height, 1.0])
     K = jnp.asarray(scale @ np.asarray(camera.K, np.float64), camera.K.dtype)
-    return stage.Camera(K=K, R=camera.R, t=camera.t, width=w, height=h, orthographic=camera.orthographic)
+    # The distortion acts on normalised coordinates, which scaling the image does not change.
+    return stage.Camera(K=K, R=camera.R, t=camera.t, width=w, height=h, orthographic=camera.orthographic,
+                        dist=camera.dist)
 
 
 def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh, camera: stage.Camera, env: EnvMap,
