@@ -12,6 +12,15 @@ Three kinds of file are read:
       "calibration": [r, g, b] | [[r, g, b], ...]  per-light RGB gain (stage.calibrate)
       "subsets": {"name": [i, ...], ...}           named light orderings, 0-based
 
+  or a list of per-light records, as stages ship them: a bare JSON list, or
+  ``{"lights": [...], "units": ..., "up": ..., "near_field": ..., "subsets": ...}``,
+  each record ``{"position": [x, y, z]}`` (or ``"direction"``, the same key in
+  every record) with optional ``"intensity"`` (a number or RGB), ``"calibration"``
+  (or ``"gain"``: a number or RGB); other fields (``"name"``, ``"id"``, ...)
+  are ignored: light i is the i-th record. A record file records neither units nor up axis by
+  itself: both must be stated (in the object, or by the caller) for positions,
+  ``up`` for directions, else a ValueError saying so.
+
   or the ICT Light Stage X table (``positions_cm``, ``order_polarized``,
   ``order_unpolarized``: 1-based), e.g. ``../shared/data/lightstage/
   light_stage_x.json``: centimetres, y up, its orderings as the subsets
@@ -183,6 +192,50 @@ def _from_positions(pos: np.ndarray, units: str, where: str, doc: Mapping | None
     return rig
 
 
+_RECORD_GAINS = ("calibration", "gain")
+
+
+def _records(doc, where: str, units: str | None, up: str | None) -> dict:
+    """A per-light record file (module docstring) as the stage schema's dict: ``positions`` or
+    ``directions``, ``intensities`` and ``calibration`` [L, 3] when any record gives them, and the object's
+    ``units``, ``up``, ``near_field`` and ``subsets``; ValueError naming the record and field otherwise."""
+    meta = {} if isinstance(doc, list) else {k: v for k, v in doc.items() if k != "lights"}
+    lights = doc if isinstance(doc, list) else doc["lights"]
+    if not isinstance(lights, list) or not lights:
+        raise ValueError(f"{where}: field 'lights' must be a non-empty list of light records")
+    for i, rec in enumerate(lights):
+        if not isinstance(rec, Mapping):
+            raise ValueError(f"{where}: light {i} must be an object with 'position' or 'direction', got "
+                             f"{type(rec).__name__}")
+    key = "position" if "position" in lights[0] else "direction" if "direction" in lights[0] else None
+    missing = [i for i, rec in enumerate(lights) if key is None or key not in rec]
+    if missing:
+        raise ValueError(f"{where}: light {missing[0]} has no field {key or 'position'!r} (every record needs "
+                         "'position' [x, y, z], or every one 'direction')")
+    out = {**meta, f"{key}s": [rec[key] for rec in lights]}
+    if key == "position" and units is None and "units" not in meta:
+        raise ValueError(f"{where}: light records carry no unit; state it: \"units\": \"mm\" | \"cm\" | \"m\" "
+                         "beside \"lights\" (or units= / relight CLI: --rig-units)")
+    if up is None and "up" not in meta:
+        raise ValueError(f"{where}: light records do not say which axis is up; state it: \"up\": \"+y\" ... "
+                         "beside \"lights\" (or up= / relight CLI: --rig-up)")
+
+    def rgb(i: int, name: str, value) -> list[float]:
+        try:
+            v = np.broadcast_to(np.asarray(value, np.float64), (3,))
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: light {i}: field {name!r} must be a number or [r, g, b], got "
+                             f"{value!r}") from None
+        return v.tolist()
+
+    if any("intensity" in rec for rec in lights):
+        out["intensities"] = [rgb(i, "intensity", rec.get("intensity", 1.0)) for i, rec in enumerate(lights)]
+    gains = [next((rec[g] for g in _RECORD_GAINS if g in rec), None) for rec in lights]
+    if any(g is not None for g in gains):
+        out["calibration"] = [rgb(i, "calibration", 1.0 if g is None else g) for i, g in enumerate(gains)]
+    return out
+
+
 def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str, np.ndarray]]:
     where = str(path)
     if units is not None and (not isinstance(units, str) or units not in POSITION_UNITS):
@@ -190,8 +243,11 @@ def _read(path: Path, units: str | None, up: str | None) -> tuple[Rig, dict[str,
     suffix = path.suffix.lower()
     if suffix == ".json":
         doc = read_json(path, "rig file")
+        if isinstance(doc, list) or (isinstance(doc, Mapping) and "lights" in doc):
+            doc = _records(doc, where, units, up)
         if not isinstance(doc, Mapping):
-            raise ValueError(f"{where}: a rig file must be a JSON object, got {type(doc).__name__}")
+            raise ValueError(f"{where}: a rig file must be a JSON object or a list of light records, got "
+                             f"{type(doc).__name__}")
         if "positions_cm" in doc:  # the ICT Light Stage X table
             try:
                 pos = np.asarray(doc["positions_cm"], np.float64)
@@ -272,6 +328,8 @@ def rig_file_subsets(path) -> dict[str, np.ndarray]:
     if path.suffix.lower() != ".json":
         return {}
     doc = read_json(path, "rig file")
+    if isinstance(doc, list) or (isinstance(doc, Mapping) and "lights" in doc):
+        doc = _records(doc, str(path), "mm", "+y")  # only the subsets are read: units and up do not matter
     if not isinstance(doc, Mapping):
         return {}
     if "positions_cm" in doc:
