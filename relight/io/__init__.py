@@ -45,6 +45,8 @@ from ._mean_free_path import read_mean_free_path as read_mean_free_path
 from ._merl import write_merl as write_merl
 from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
+from ._photo_check import PhotoCheck as PhotoCheck
+from ._photo_check import check_photo_capture as check_photo_capture
 from ._photo_texels import PhotoTexelReport as PhotoTexelReport
 from ._photo_texels import photos_to_texels as photos_to_texels
 from ._photos import PhotoCapture as PhotoCapture
@@ -83,7 +85,9 @@ from ._texel import mesh_spec as mesh_spec
 from ._texel import open_texel_capture as open_texel_capture
 from ._texel import spec_mesh as spec_mesh
 from ._texel import texel_surface as texel_surface
+from ._texture_set import UNSEEN_FILL as UNSEEN_FILL
 from ._texture_set import TextureSet as TextureSet
+from ._texture_set import fill_unseen as fill_unseen
 from ._texture_set import is_map_set as is_map_set
 from ._texture_set import read_maps as read_maps
 from ._texture_set import texture_set as texture_set
@@ -137,6 +141,7 @@ __all__ = [
     "SampleSubset",
     "TexelCapture",
     "TexelMaps",
+    "UNSEEN_FILL",
     "TextureSet",
     "check_radiance",
     "exr_header",
@@ -144,6 +149,7 @@ __all__ = [
     "is_diligent_folder",
     "is_map_set",
     "is_photo_capture",
+    "check_photo_capture",
     "jsonable",
     "lambert_normals",
     "grey_value",
@@ -154,6 +160,7 @@ __all__ = [
     "mesh_spec",
     "open_capture",
     "photos_to_texels",
+    "PhotoCheck",
     "read_capture",
     "diligent_capture",
     "read_diligent",
@@ -177,6 +184,7 @@ __all__ = [
     "read_png",
     "spec_mesh",
     "texel_surface",
+    "fill_unseen",
     "texture_set",
     "write_capture",
     "write_exr",

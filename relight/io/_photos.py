@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -140,6 +141,7 @@ class PhotoCapture:
     def __init__(self, folder: str | os.PathLike, rig_units: str | None = None, rig_up: str | None = None,
                  rig_subset: str | None = None):
         self.folder = Path(folder)
+        self._warned_unscaled = False
         if not self.folder.is_dir():
             raise FileNotFoundError(f"{self.folder}: no such photo capture folder")
         where = self.folder / "capture.json"
@@ -226,6 +228,7 @@ class PhotoCapture:
         if sat is not None and (isinstance(sat, bool) or not isinstance(sat, (int, float)) or not sat > 0):
             raise _err(where, f"field 'saturation' must be a positive number, got {sat!r}")
         return {"files": files, "mask": mask, "saturation": sat,
+                "scale_stated": "exposure" in v or "gain" in v,
                 "encoding": _encoding(v.get("encoding", "linear"), f"{where}: field 'encoding'"),
                 "scale": 1.0 / (_positive(v.get("exposure", 1.0), L, f"{where}: field 'exposure'")
                                 * _positive(v.get("gain", 1.0), L, f"{where}: field 'gain'")),
@@ -265,6 +268,24 @@ class PhotoCapture:
             return img, np.zeros(size, bool)
         return img, np.any(stored >= saturation, axis=-1)
 
+    def unscaled_png(self, view: int) -> bool:
+        """Whether ``view``'s images are PNGs and capture.json states neither ``exposure`` nor ``gain`` for it:
+        their values are then read as fractions of full scale (65535 or 255 = radiance 1), which sensor counts
+        are not (docs/capture_layout.md, "From sensor counts to radiance")."""
+        v = self._views[view]
+        return not v["scale_stated"] and any(f.suffix.lower() == ".png" for f in v["files"])
+
+    def _note_unscaled_counts(self, view: int, first: Path) -> None:
+        """Warn, once per capture, that a view's PNGs are read as radiance with no stated scale."""
+        if self._warned_unscaled or not self.unscaled_png(view):
+            return
+        self._warned_unscaled = True
+        warnings.warn(f"{self.folder / 'capture.json'}: view {self.names[view]!r} reads PNGs ({first.name}, ...) "
+                      "with no 'exposure' or 'gain': radiance = stored value / full scale. If the images are "
+                      "sensor counts, state 'gain' (counts per unit radiance / 65535 for 16-bit PNGs; "
+                      "docs/capture_layout.md, 'From sensor counts to radiance'), or \"gain\": 1 to confirm "
+                      "the values are radiance", UserWarning, stacklevel=3)
+
     def read_mask(self, view: int) -> np.ndarray:
         """bool [H, W]: the view's mask (> half of full scale in its first
         channel), all True without one."""
@@ -293,6 +314,8 @@ class PhotoCapture:
         rad = valid = None
         for j, l in enumerate(ls):
             img, saturated = self._read_image(v["files"][l], v["encoding"], v["size"], v["saturation"])
+            if j == 0:
+                self._note_unscaled_counts(view, v["files"][l])
             if rad is None:
                 rad = np.empty((len(ls), *img.shape), np.float32)
                 valid = np.empty((len(ls), *img.shape[:2]), bool)
@@ -397,6 +420,9 @@ def _write_photos(folder, images, rig, cameras, names, fmt, encoding, enc, half,
         for key, val in (("exposure", exposure), ("gain", gain)):
             if val is not None:
                 entry[key] = np.asarray(val[v], np.float64).tolist()
+        if fmt == "png" and gain is None and exposure is None:
+            entry["gain"] = 1.0  # the values written are radiance: said, so a reader need not warn
+
         views.append(entry)
     doc = {"format": FORMAT, "version": VERSION, "rig": "rig.json", "cameras": "cameras.json",
            "encoding": encoding if fmt == "png" else "linear", "views": views, "metadata": dict(metadata or {})}
