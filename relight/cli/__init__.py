@@ -10,7 +10,8 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``demo``: simulate, fit and relight the bundled head in one go;
 * ``view``: index.html, the results viewer (a self-contained page with an environment-rotation slider);
 * ``reseal``: accept hand edits of a result folder (its manifest rewritten over the files as they now are);
-* ``info``: versions, devices and bundled data.
+* ``cameras``: a COLMAP, OpenCV or Metashape calibration as the project's camera file;
+* ``info``: versions, devices and bundled data, or a photo capture checked before fitting.
 
 ``-q`` / ``--quiet`` hides progress bars, ``-qq`` the one-line summary too.
 Misuse prints a usage line and exits 2; a bad input file prints
