@@ -367,14 +367,16 @@ class TexelMaps(NamedTuple):
 
 def load_texel_maps(folder: str | os.PathLike) -> TexelMaps:
     """A map set (``relight.io.write_maps``'s) with the texel surface rebuilt
-    from ``maps.json``'s ``surface`` entry and the maps at its covered texels;
+    from ``maps.json``'s ``surface`` entry and the maps at its covered texels
+    (and at its filled ones, which no camera saw: ``TextureSet.filled``);
     also the cameras and rig the set's metadata records (``relight fit`` keeps
     the capture's). Raises as :func:`relight.io.read_maps`, naming the file."""
     folder = Path(folder)
     textures, info = read_maps(folder)
     where = str(folder / "maps.json")
     mesh, full = texel_surface(info, textures.resolution, where=where)
-    cov = textures.coverage.reshape(-1)[np.asarray(full.texel_index)]
+    # The texels that hold a sample's maps: measured (coverage) or the fill of texels no camera saw (filled).
+    cov = (textures.coverage | textures.filled).reshape(-1)[np.asarray(full.texel_index)]
     surface = full.subset(np.nonzero(cov)[0])
     meta = textures.info.get("metadata", {})
     docs = meta.get("cameras") or []

@@ -16,7 +16,10 @@ normal.exr           R, G, B                     tangent-space normal, encoded 0
                      tangent.R, tangent.G, .B    world-space unit tangent of the fitted frame, raw
 mean_free_path.exr   R, G, B                     diffuse mean free path, mm (Burley ``dmfp``)
 model.exr            Y                           model-ladder index (see maps.json ``models``)
-coverage.exr         Y                           1 on texels that hold a fitted sample, 0 in the gutter
+coverage.exr         Y                           1 on texels some camera saw (a fitted sample), 0 on
+                                                 texels no camera saw and in the gutter
+                     filled                      1 on texels no camera saw (inside the atlas; their
+                                                 maps hold the fill below), 0 elsewhere
 maps.json            --                          format, version, resolution, surface (mesh path,
                                                  scale, centring, units), the model legend, the
                                                  file table and free-form metadata
@@ -31,6 +34,16 @@ Texels outside the UV charts are filled from their valid neighbours for
 value for the model index, renormalised for normals) so a bilinear lookup at
 a chart border does not blend in the empty background. ``coverage.exr``
 tells fitted texels from padding.
+
+Texels no camera saw (``seen`` False: ``relight fit``'s photo-capture texels
+seen by fewer than ``min_views`` cameras, a texel capture's texels without a
+valid observation) hold no measurement. They are coverage 0 and ``filled`` 1
+in ``coverage.exr``, and their maps hold an explicit fill (``UNSEEN_FILL``,
+recorded in maps.json ``unseen``) so exported textures have no holes: diffuse albedo,
+specular albedo, roughness, mean free path and model rung are copied from the
+nearest seen texel on the surface (3D distance between texel centres, so UV
+seams do not matter), and the shading frame is the mesh's own (tangent-space
+normal (0, 0, 1)). A reader that wants only measurements masks by coverage.
 
 ``texture_set(maps, surface)`` builds the set in memory (a :class:`TextureSet`,
 what reading the files back gives); ``write_texture_set`` writes one and
@@ -63,12 +76,17 @@ from ._errors import ImageFormatError, format_version, set_refusal_as
 from ._exr import read_exr_channels, write_exr_channels
 from ._json import jsonable, read_json, write_json
 
-__all__ = ["TextureSet", "is_map_set", "read_maps", "texture_set", "write_maps", "write_texture_set",
-           "write_texture_set_files"]
+__all__ = ["UNSEEN_FILL", "TextureSet", "fill_unseen", "is_map_set", "read_maps", "texture_set", "write_maps",
+           "write_texture_set", "write_texture_set_files"]
 
 FORMAT = "relight-maps"
 VERSION = 1
 # File -> channels, the layout in the module docstring.
+# The fill of texels no camera saw (module docstring), as maps.json's ``unseen.fill`` names it.
+UNSEEN_FILL = "nearest_seen"
+FILL_ABOUT = ("texels no camera saw: coverage.exr Y 0, filled 1; diffuse albedo, specular albedo, roughness, "
+              "mean free path and model copied from the nearest seen texel on the surface (3D), shading normal "
+              "the mesh's own; not measurements")
 FILES = {
     "albedo": ("albedo.exr", ("R", "G", "B")),
     "specular": ("specular.exr", ("Y",)),
@@ -76,8 +94,10 @@ FILES = {
     "normal": ("normal.exr", ("R", "G", "B", "world.R", "world.G", "world.B", "tangent.R", "tangent.G", "tangent.B")),
     "mean_free_path": ("mean_free_path.exr", ("R", "G", "B")),
     "model": ("model.exr", ("Y",)),
-    "coverage": ("coverage.exr", ("Y",)),
+    "coverage": ("coverage.exr", ("Y", "filled")),
 }
+# Channels a reader does without (sets written before they existed): channel -> what it reads as.
+OPTIONAL = {("coverage", "filled"): 0.0}
 # Rings of gutter texels filled around each chart: enough for bilinear
 # lookups plus one coarser mip level.
 DEFAULT_GUTTER = 4
@@ -90,7 +110,9 @@ class TextureSet:
     albedo [H, W, 3], specular [H, W, 1], alpha [H, W, 2], normal (world)
     [H, W, 3], tangent (world) [H, W, 3], normal_ts (tangent space, decoded to
     -1..1) [H, W, 3], mfp [H, W, 3] (mm), model [H, W] int32, coverage
-    [H, W] bool; ``info`` holds maps.json."""
+    [H, W] bool (texels some camera saw); ``info`` holds maps.json; filled
+    [H, W] bool: texels no camera saw, whose maps hold the fill
+    (``UNSEEN_FILL``; None: none)."""
 
     albedo: np.ndarray
     specular: np.ndarray
@@ -102,6 +124,11 @@ class TextureSet:
     model: np.ndarray
     coverage: np.ndarray
     info: dict
+    filled: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.filled is None:
+            object.__setattr__(self, "filled", np.zeros(np.shape(self.coverage), bool))
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -114,14 +141,16 @@ class TextureSet:
     def maps(self, surface) -> MaterialMaps:
         """The maps at ``surface``'s samples (looked up at ``surface.texel_index``)
         as :class:`relight.MaterialMaps`. The surface must live on this set's
-        texel grid; samples on uncovered (gutter) texels are refused."""
+        texel grid; samples on texels that are neither covered nor filled (the
+        gutter) are refused."""
         if tuple(surface.resolution) != self.resolution:
             raise ValueError(f"texture set is {self.resolution[0]}x{self.resolution[1]} texels but the surface's "
                              f"grid is {surface.resolution[0]}x{surface.resolution[1]}")
         idx = np.asarray(surface.texel_index)
         flat = lambda a: a.reshape((-1,) + a.shape[2:])[idx]  # noqa: E731
-        if not np.all(flat(self.coverage)):
-            n = int(np.sum(~flat(self.coverage)))
+        on = flat(self.coverage | self.filled)
+        if not np.all(on):
+            n = int(np.sum(~on))
             raise ValueError(f"{n} surface sample(s) fall on texels the texture set does not cover")
         return material_maps(surface, flat(self.albedo), flat(self.specular), flat(self.alpha),
                              normal=flat(self.normal), tangent=flat(self.tangent), mfp=flat(self.mfp),
@@ -168,7 +197,7 @@ class _Maps:
     built when asked for (``get``) and not kept, so a caller that writes one
     file at a time holds one map's textures and their sources, not all of them."""
 
-    def __init__(self, maps: MaterialMaps, surface, gutter: int):
+    def __init__(self, maps: MaterialMaps, surface, gutter: int, seen=None):
         P = surface.num_samples
         if maps.num_samples != P:
             raise ValueError(f"maps hold {maps.num_samples} samples but the surface has {P}")
@@ -176,9 +205,19 @@ class _Maps:
         idx = np.asarray(surface.texel_index)
         if len(np.unique(idx)) != len(idx):
             raise ValueError("surface has several samples on one texel; a texture set needs one per texel")
+        seen = np.ones(P, bool) if seen is None else np.asarray(seen, bool)
+        if seen.shape != (P,):
+            raise ValueError(f"seen must be bool [{P}] (one per surface sample), got shape {seen.shape}")
+        if not seen.any():
+            raise ValueError("no surface sample is seen: a texture set needs at least one measured texel")
+        self.n_unseen = int(P - seen.sum())
+        if self.n_unseen:
+            maps = fill_unseen(maps, surface, seen)
         self.maps, self.surface, self.gutter, self.P = maps, surface, gutter, P
         self.valid = np.zeros((h, w), bool)
         self.valid.reshape(-1)[idx] = True
+        self.covered = np.zeros((h, w), bool)
+        self.covered.reshape(-1)[idx[seen]] = True
 
     def _tex(self, x, fill=0.0):
         x = np.asarray(x, np.float32)
@@ -228,7 +267,9 @@ class _Maps:
             return _dilate_nearest(self.surface.to_texture(np.asarray(m.model, np.int32)), self.valid,
                                    self.gutter).astype(np.int32)
         if field == "coverage":
-            return self.valid
+            return self.covered
+        if field == "filled":
+            return self.valid & ~self.covered
         raise KeyError(field)
 
 
@@ -254,12 +295,46 @@ def _file_channels(key: str, get) -> dict[str, np.ndarray]:
     if key == "model":
         return {"Y": get("model").astype(np.float32)}
     if key == "coverage":
-        return {"Y": get("coverage").astype(np.float32)}
+        return {"Y": get("coverage").astype(np.float32), "filled": get("filled").astype(np.float32)}
     raise KeyError(key)
 
 
-def _info(surface, P: int, gutter: int, metadata, surface_info) -> dict:
-    """maps.json of a set over ``surface`` (P samples)."""
+def fill_unseen(maps: MaterialMaps, surface, seen) -> MaterialMaps:
+    """``maps`` with the samples no camera saw given the texture set's fill (``UNSEEN_FILL``, module docstring).
+
+    Args:
+        maps: :class:`relight.MaterialMaps` over ``surface``'s samples.
+        surface: the ``stage.Surface`` (its ``position`` [P, 3] finds the nearest seen sample).
+        seen: bool [P], the samples some camera saw (at least one).
+
+    Returns:
+        The maps with every unseen sample's diffuse albedo, specular albedo, roughness, mean free path and
+        model rung copied from the nearest seen sample (Euclidean distance between sample positions, ties to
+        the lower index), and its shading normal and tangent the surface's own; seen samples unchanged.
+    """
+    from scipy.spatial import cKDTree
+
+    seen = np.asarray(seen, bool)
+    pos = np.asarray(surface.position, np.float64)
+    on, off = np.flatnonzero(seen), np.flatnonzero(~seen)
+    if off.size == 0:
+        return maps
+    _, k = cKDTree(pos[on]).query(pos[off])
+    src = on[k]
+
+    def copy(a, take):
+        a = np.array(a, copy=True)
+        a[off] = take[off] if take is not None else a[src]
+        return a
+
+    return material_maps(surface, copy(maps.rho_d, None), copy(maps.rho_s, None), copy(maps.alpha, None),
+                         normal=copy(maps.normal, np.asarray(surface.normal, np.asarray(maps.normal).dtype)),
+                         tangent=copy(maps.tangent, np.asarray(surface.tangent, np.asarray(maps.tangent).dtype)),
+                         mfp=copy(maps.mfp, None), model=copy(maps.model, None))
+
+
+def _info(surface, P: int, gutter: int, metadata, surface_info, n_unseen: int = 0) -> dict:
+    """maps.json of a set over ``surface`` (P samples, ``n_unseen`` of them filled)."""
     h, w = surface.resolution
     return {
         "format": FORMAT,
@@ -267,6 +342,7 @@ def _info(surface, P: int, gutter: int, metadata, surface_info) -> dict:
         "resolution": [int(h), int(w)],
         "samples": int(P),
         "gutter": int(gutter),
+        "unseen": {"texels": int(n_unseen), "fill": UNSEEN_FILL, "about": FILL_ABOUT},
         "models": {str(i): m for i, m in enumerate(MODELS)},
         "units": {"albedo": "1 (linear)", "specular": "1 (Schlick F0)", "roughness": "GGX alpha",
                   "mean_free_path": "mm", "normal": "unit vectors; R,G,B tangent space encoded 0.5 n + 0.5",
@@ -279,16 +355,16 @@ def _info(surface, P: int, gutter: int, metadata, surface_info) -> dict:
 
 
 def texture_set(maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
-                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> TextureSet:
+                surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER, seen=None) -> TextureSet:
     """The texture set of ``maps`` (over ``surface``'s samples), in memory: what
     :func:`write_maps` writes and :func:`read_maps` reads back (to the float32
     rounding of the EXR files), without touching the disk.
 
     Args: as :func:`write_maps`. ``info`` holds what maps.json will hold.
     """
-    src = _Maps(maps, surface, gutter)
+    src = _Maps(maps, surface, gutter, seen)
     fields = {f.name: src.get(f.name) for f in dataclasses.fields(TextureSet) if f.name != "info"}
-    return TextureSet(**fields, info=_info(surface, src.P, gutter, metadata, surface_info))
+    return TextureSet(**fields, info=_info(surface, src.P, gutter, metadata, surface_info, src.n_unseen))
 
 
 # The result-set kind of a map set written by write_maps / write_texture_set (relight fit's is "fit").
@@ -334,7 +410,7 @@ def write_texture_set(folder: str | os.PathLike, textures: TextureSet) -> Path:
 
 
 def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metadata: Mapping | None = None,
-               surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER) -> Path:
+               surface_info: Mapping | None = None, gutter: int = DEFAULT_GUTTER, seen=None) -> Path:
     """Write ``maps`` (over ``surface``'s samples) as a texture set in ``folder``:
     the files of ``write_texture_set(folder, texture_set(maps, surface, ...))``,
     bit for bit, but each map is built, written and dropped before the next, so
@@ -351,14 +427,16 @@ def write_maps(folder: str | os.PathLike, maps: MaterialMaps, surface, *, metada
         surface_info: how to rebuild the surface (mesh path, scale, centring),
             stored under maps.json ``surface``; resolution is added.
         gutter: rings of padding texels filled around each UV chart.
+        seen: bool [P], the samples some camera saw; the others are coverage 0 and hold the fill
+            (:func:`fill_unseen`, the module docstring). None: every sample.
 
     Returns the folder.
     """
     try:
-        src = _Maps(maps, surface, gutter)
+        src = _Maps(maps, surface, gutter, seen)
     except ValueError as err:
         raise ValueError(f"{folder}: {err}") from None
-    return _write_set(Path(folder), src.get, _info(surface, src.P, gutter, metadata, surface_info))
+    return _write_set(Path(folder), src.get, _info(surface, src.P, gutter, metadata, surface_info, src.n_unseen))
 
 
 def _version() -> str:
@@ -386,6 +464,27 @@ def _read_header(meta_path: Path) -> tuple[dict, tuple[int, int]]:
     return info, res
 
 
+def _read_map_file(path: Path, key: str, names, res: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The channels ``names`` of the map file ``path`` (FILES' ``key``), checked: present (or OPTIONAL),
+    ``res`` texels, finite."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing from the map set ({key} map)")
+    c, _ = read_exr_channels(path)
+    for n in names:
+        if n not in c and (key, n) in OPTIONAL:
+            c[n] = np.full(res, OPTIONAL[key, n], np.float32)
+    missing = [n for n in names if n not in c]
+    if missing:
+        raise ImageFormatError(f"{path}: channel(s) {missing} missing; the file has {sorted(c)}")
+    for n in names:
+        if c[n].shape != res:
+            raise ImageFormatError(f"{path}: map is {c[n].shape[0]}x{c[n].shape[1]} texels but maps.json says "
+                                   f"{res[0]}x{res[1]}")
+        if not np.all(np.isfinite(c[n])):
+            raise ImageFormatError(f"{path}: channel {n!r} has NaN or Inf values")
+    return {n: np.asarray(c[n], np.float32) for n in names}
+
+
 def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     """Read and validate a texture set written by :func:`write_maps`.
 
@@ -408,26 +507,16 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     rs = _open_set(folder)  # opened first: the folder's identity then is what the files must still belong to
     meta_path = folder / "maps.json"
     info, res = _read_header(meta_path)
-    chans = {}
-    for key, (name, names) in FILES.items():
-        path = folder / name
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: missing from the map set ({key} map)")
-        c, _ = read_exr_channels(path)
-        missing = [n for n in names if n not in c]
-        if missing:
-            raise ImageFormatError(f"{path}: channel(s) {missing} missing; the file has {sorted(c)}")
-        for n in names:
-            if c[n].shape != res:
-                raise ImageFormatError(f"{path}: map is {c[n].shape[0]}x{c[n].shape[1]} texels but maps.json says "
-                                       f"{res[0]}x{res[1]}")
-            if not np.all(np.isfinite(c[n])):
-                raise ImageFormatError(f"{path}: channel {n!r} has NaN or Inf values")
-        chans[key] = {n: np.asarray(c[n], np.float32) for n in names}
+    chans = {key: _read_map_file(folder / name, key, names, res) for key, (name, names) in FILES.items()}
     st = lambda key, names: np.stack([chans[key][n] for n in names], -1)  # noqa: E731
-    coverage = chans["coverage"]["Y"] > 0.5
-    if not coverage.any():
+    seen = chans["coverage"]["Y"] > 0.5
+    filled = chans["coverage"]["filled"] > 0.5
+    if not seen.any():
         raise ImageFormatError(f"{folder / 'coverage.exr'}: covers no texel")
+    if np.any(seen & filled):
+        raise ImageFormatError(f"{folder / 'coverage.exr'}: {int(np.sum(seen & filled))} texel(s) are both covered "
+                               "(Y) and filled (no camera saw them)")
+    coverage = seen | filled  # the texels that hold a sample's maps, measured or filled
     model_y = chans["model"]["Y"]
     off = coverage & (np.abs(model_y - np.rint(model_y)) > 1e-3)
     if np.any(off):
@@ -449,8 +538,9 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         normal_ts=2.0 * st("normal", "RGB") - 1.0,
         mfp=st("mean_free_path", "RGB"),
         model=model,
-        coverage=coverage,
+        coverage=seen,
         info=info,
+        filled=filled,
     )
     with set_refusal_as(folder):
         if isinstance(rs, ResultSetError):
