@@ -200,7 +200,8 @@ def _run_texel(args, capture_dir: Path, mesh, devices, envmap: Path, out: Path, 
                     ("" if med is None else ", median mfp " + "/".join(f"{x:.3g}" for x in med) + " mm (R/G/B)"))
         resumed = f"; {parts['resumed_blocks']} of {parts['blocks']} blocks resumed" * bool(parts["resumed_blocks"])
         print(f"wrote {out}/ (texture set, scene.xml, report.md); {report['samples']} texels, "
-              f"{100 * report['failed_fraction']:.1f}% flagged{tail}{resumed}")
+              f"{100 * report['failed_fraction']:.1f}% flagged ({report['unseen_samples']} unseen, "
+              f"{report['failed_seen_samples']} of {report['seen_samples']} seen failed){tail}{resumed}")
     return 0
 
 

@@ -49,6 +49,14 @@ turned into Mitsuba's camera-to-world (x left, y up, z forward), the image size
 as the film and the principal point as ``principal_point_offset_x/y``
 (relative to the film size). Orthographic cameras are refused.
 
+Texels no camera saw (``TextureSet.filled``) carry the texture set's fill
+(``relight.io.UNSEEN_FILL``: the nearest seen texel's material, the mesh's own
+normal), so the exported textures have no holes; the scene labels them: a
+comment in scene.xml counts them and names the fill, and
+``mitsuba/coverage.exr`` (Y: 1 where a camera saw the texel, 0 where the
+texture holds the fill or gutter) is written beside the textures for a mask.
+Mitsuba itself does not read that file.
+
 Environment: an ``envmap`` emitter rotated 180 degrees about +y, which maps
 Mitsuba's lat-long convention (u = 0 at -z... u = atan2(x, -z) / 2 pi) onto
 ``relight.envmap``'s (u = 0.5 at -z). The two also differ in what a pixel is:
@@ -76,7 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import read_exr, read_hdr, write_exr
+from ..io import UNSEEN_FILL, read_exr, read_hdr, write_exr
 from ..materials import BLINN_PHONG
 from ..results import atomic_path, atomic_write_bytes
 
@@ -220,7 +228,8 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
             the fitted model's Schlick Fresnel; see the module docstring).
 
     Returns:
-        The path of scene.xml. See the module docstring for the BSDF mapping.
+        The path of scene.xml. See the module docstring for the BSDF mapping, and for the label of texels
+        no camera saw (a scene.xml comment and ``mitsuba/coverage.exr``).
     """
     folder = Path(folder)
     if fresnel not in ("dielectric", "schlick"):
@@ -272,6 +281,15 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
         write_exr(tex_dir / "base_color.exr", np.repeat((f0 / w)[..., None], 3, -1).astype(np.float32))
         rough = np.sqrt(np.sqrt(np.maximum(alpha[..., 0], 0.0) * np.maximum(alpha[..., 1], 0.0)))
         write_exr(tex_dir / "roughness.exr", rough.astype(np.float32))
+    filled = getattr(textures, "filled", None)
+    filled = np.zeros_like(cov, bool) if filled is None else np.asarray(filled, bool)
+    note = None
+    if filled.any():
+        # Label the fill: a mask beside the textures and a comment in the scene (Mitsuba reads neither).
+        write_exr(tex_dir / "coverage.exr", cov.astype(np.float32))
+        note = (f"{int(filled.sum())} of the {int((cov | filled).sum())} texels, which no camera saw, carry the "
+                f"texture set's fill ({UNSEEN_FILL}: the nearest seen texel's material, the mesh's normal; not "
+                "measurements); mitsuba/coverage.exr is 1 where a camera saw the texel")
     n_ts = np.asarray(textures.normal_ts, np.float64)
     use_normalmap = bool(np.any(np.abs(n_ts[cov] - [0.0, 0.0, 1.0]) > _FLAT_NORMAL_TOL))
     if use_normalmap:
@@ -345,7 +363,7 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
         _sub(pr, "float", name="metallic", value="1")
         _sub(pr, "float", name="spec_tint", value="0")
         _sub(pr, "float", name="anisotropic", value="0")
-        return _write_xml(folder, scene)
+        return _write_xml(folder, scene, note)
     _sub(blend, "float", name="weight", value="0.5")
     diff = _sub(blend, "bsdf", type="diffuse")
     # raw: linear EXR data used as is (2 rho_d may exceed 1, which Mitsuba's
@@ -359,13 +377,15 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     _sub(cond, "rgb", name="k", value="0")
     _sub(cond, "float", name="specular_reflectance", value="2")
 
-    return _write_xml(folder, scene)
+    return _write_xml(folder, scene, note)
 
 
-def _write_xml(folder: Path, scene) -> Path:
+def _write_xml(folder: Path, scene, note: str | None = None) -> Path:
     ET.indent(scene)
     comment = ("<!-- relight texture set exported for Mitsuba 3: rho_d/pi + GGX specular as a blendbsdf "
                "(the mapping: relight/export/_mitsuba.py, docs/cli.md). Lengths in mm. -->\n")
+    if note is not None:
+        comment += f"<!-- relight unseen texels: {note.replace('--', '-')}. -->\n"
     xml = '<?xml version="1.0" encoding="utf-8"?>\n' + comment + ET.tostring(scene, encoding="unicode") + "\n"
     path = folder / "scene.xml"
     atomic_write_bytes(path, lambda fh: fh.write(xml.encode()))

@@ -36,6 +36,7 @@ from ._problem import subsurface_texel_data as subsurface_texel_data
 from ._report import ERROR_ROWS as ERROR_ROWS
 from ._report import angular_error_deg as angular_error_deg
 from ._report import fit_report as fit_report
+from ._report import flagged_summary as flagged_summary
 from ._report import read_truth as read_truth
 from ._report import report_markdown as report_markdown
 from ._report import subsurface_report as subsurface_report

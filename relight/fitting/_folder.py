@@ -52,6 +52,26 @@ class FitFolderResult(NamedTuple):
     warnings: tuple[str, ...]
 
 
+# Share of flagged texels (unseen or failed) from which fit_folder warns.
+FLAGGED_WARN = 0.5
+
+
+def flagged_warning(report: dict) -> str:
+    """The warning of a fit with many flagged texels (:func:`relight.fitting.fit_report`'s ``report``): the
+    texels no camera saw apart from the failures among the seen, and what covers each."""
+    r = report
+    n, unseen, seen, failed = r["samples"], r["unseen_samples"], r["seen_samples"], r["failed_seen_samples"]
+    parts = []
+    if unseen:
+        parts.append(f"{unseen} of the {n} texels are unseen: no camera sees them (coverage.exr 0; their maps hold "
+                     "the map set's fill, the nearest seen texel's material, maps.json 'unseen'; more camera "
+                     "views cover them)")
+    if failed or not unseen:
+        parts.append(f"{failed} of the {seen} seen texels failed (a solver failure, or fewer than 8 valid lights: a "
+                     "rig with more lights covers them; their maps hold the defaults)")
+    return f"{100 * r['failed_fraction']:.0f}% of the texels are flagged: " + "; ".join(parts)
+
+
 def _model_choices(model, normals, solver) -> dict:
     return {"solver": solver, **({"model": model} if model else {}), **({"normals": True} if normals else {})}
 
@@ -163,10 +183,8 @@ def fit_folder(capture_dir: str | os.PathLike, folder: str | os.PathLike, *, par
                                      surface_info=info, metadata=meta, envmap=envmap, normals=normals,
                                      truth=read_truth(capture_dir, surface), subsurface=sss, coverage=coverage,
                                      timings=times, extra={"parts": part_info})
-    if report["failed_fraction"] >= 0.5:
-        warnings = (*warnings, f"{100 * report['failed_fraction']:.0f}% of the texels are flagged (a solver "
-                    "failure, or fewer than 8 valid lights: a rig with more lights, or more cameras, covers them); "
-                    "their maps hold the defaults")
+    if report["failed_fraction"] >= FLAGGED_WARN:
+        warnings = (*warnings, flagged_warning(report))
     return FitFolderResult(report, fitted, surface, capture, mesh, kind, info, kwargs, scene, part_info, sss, times,
                            not isinstance(capture, stage.Capture), tuple(warnings))
 

@@ -139,11 +139,15 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
         truth: the true :class:`relight.MaterialMaps` at the same samples (a simulation's), or None.
         normals: the fit fitted shading normals (their angle to the truth's is reported).
         timings: seconds per stage (``{"fit_s": ...}``), reported rounded to the millisecond.
-        seen: bool [P], the samples the truth errors count as seen (:func:`truth_errors`); None: those
-            with observations.
+        seen: bool [P], the samples some camera saw (a photo capture's ``~PhotoTexelReport.unseen``): the
+            others are counted as unseen, apart from the failures, and the truth errors count these as seen
+            (:func:`truth_errors`); None: those with observations.
 
     Returns:
-        A JSON-able dict: ``samples``, ``failed_fraction``, ``residual_rms_median`` (unflagged samples),
+        A JSON-able dict: ``samples``, ``failed_fraction`` (every flagged sample, unseen ones included),
+        ``unseen_samples`` (no camera saw them: no observation, their maps the map set's fill),
+        ``seen_samples``, ``failed_seen_samples`` / ``failed_seen_fraction`` (flagged among the seen: a
+        solver failure or fewer valid observations than the fit needs), ``residual_rms_median`` (unflagged samples),
         ``observed_samples``, ``steps_median`` and ``observed_median`` (over the samples with
         observations), ``timings_s``, ``model_counts`` / ``unresolved_fraction`` / ``ambiguous_fraction`` /
         ``collapsed_fraction``
@@ -153,9 +157,15 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
     failed = np.asarray(fitted.failed, bool)
     observed = np.asarray(fitted.observed)
     has_obs = observed > 0
+    seen_ = has_obs if seen is None else np.asarray(seen, bool)
+    n_seen = int(seen_.sum())
     r = {
         "samples": int(surface.num_samples),
         "failed_fraction": float(np.mean(failed)),
+        "unseen_samples": int(surface.num_samples) - n_seen,
+        "seen_samples": n_seen,
+        "failed_seen_samples": int(np.sum(failed & seen_)),
+        "failed_seen_fraction": float(np.sum(failed & seen_) / n_seen) if n_seen else None,
         "residual_rms_median": float(np.median(np.asarray(fitted.residual)[~failed])) if (~failed).any() else None,
         "observed_samples": int(np.sum(has_obs)),
         "steps_median": float(np.median(np.asarray(fitted.steps)[has_obs])) if has_obs.any() else 0.0,
@@ -266,7 +276,8 @@ def _photos_md(ph: dict) -> list[str]:
     return [f"Photo capture resampled onto the texel grid ({ph['sampling']}; views beyond {ph['grazing_deg']:g} "
             f"degrees, outside a mask, occluded or saturated dropped): **{ph['unseen']} of {ph['texels']} texels "
             f"({100 * ph['unseen_fraction']:.1f}%) unseen** (seen by fewer than {ph['min_views']} camera(s); "
-            "flagged, red in coverage.png).", "",
+            "flagged, red in coverage.png, 0 in coverage.exr; their maps hold the map set's fill, maps.json "
+            "`unseen`: the nearest seen texel's material and the mesh's normal, not measurements).", "",
             "| camera | texels seen | valid observations |", "| --- | --- | --- |",
             *[f"| {v['camera']} | {v['seen']} | {100 * v['valid_fraction']:.1f}% |" for v in ph["views"]], ""]
 
@@ -281,6 +292,18 @@ def _diligent_md(dg: dict) -> list[str]:
                   f"| Lambertian least squares (baseline) | {e['lambert_ls_baseline_mean']:.2f} | "
                   f"{e['lambert_ls_baseline_median']:.2f} |", ""]
     return lines
+
+
+def flagged_summary(report: dict) -> str:
+    """How a fit's flagged samples split (:func:`fit_report`'s counts): those no camera saw apart from the
+    failures among the seen, e.g. "2493 unseen (no camera saw them; coverage 0, maps.json's fill) and 12 of
+    the 1289 seen failed (a solver failure or fewer than 8 valid lights)"."""
+    r = report
+    if "unseen_samples" not in r:  # a report written before the split
+        return "solver failure, fewer than 8 valid lights or unseen"
+    return (f"{r['unseen_samples']} unseen (no camera saw them; coverage 0, their maps maps.json's fill) and "
+            f"{r['failed_seen_samples']} of the {r['seen_samples']} seen failed (a solver failure or fewer than 8 "
+            "valid lights)")
 
 
 def report_markdown(report: dict, title: str = "relight fit report", preface=()) -> str:
@@ -298,8 +321,8 @@ def report_markdown(report: dict, title: str = "relight fit report", preface=())
     """
     r = report
     lines = [f"# {title}", "", *preface,
-             f"{r['samples']} texels fitted; {100 * r['failed_fraction']:.2f}% flagged (solver failure or fewer "
-             f"than 8 valid lights). Median RMS residual {_g(r['residual_rms_median'])} (unflagged texels); over the "
+             f"{r['samples']} texels fitted; {100 * r['failed_fraction']:.2f}% flagged: {flagged_summary(r)}. "
+             f"Median RMS residual {_g(r['residual_rms_median'])} (unflagged texels); over the "
              f"{r['observed_samples']} texels with observations, median steps {r['steps_median']:.0f} and median "
              f"valid observations {r['observed_median']:.0f}.", ""]
     if r.get("ambiguous_fraction"):

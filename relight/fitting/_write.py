@@ -13,7 +13,7 @@ from ._report import report_markdown
 
 def write_fit_maps(folder: str | os.PathLike, maps, surface, *, cameras, rig, mesh, surface_info: dict,
                    metadata: dict | None = None, envmap: str | os.PathLike | None = None,
-                   mean_free_path: bool = False) -> Path | None:
+                   mean_free_path: bool = False, seen=None) -> Path | None:
     """Write a fit's map set into a folder: the texture set, rig.json, scene.xml and the previews.
 
     The files are written into ``folder`` as it is (no manifest, no swap: a caller builds a result set
@@ -34,6 +34,8 @@ def write_fit_maps(folder: str | os.PathLike, maps, surface, *, cameras, rig, me
         envmap: the environment map the scene uses; None: no scene.
         mean_free_path: also write mean_free_path.png (the mean free path over the set's largest; after a
             subsurface fit).
+        seen: bool [P], the samples some camera saw (``relight.io.texture_set``'s: the others are coverage 0
+            and hold the set's documented fill, labelled in maps.json and the scene); None: every sample.
 
     Returns:
         The path of scene.xml, or None when none was written (an orthographic camera, no map).
@@ -50,7 +52,7 @@ def write_fit_maps(folder: str | os.PathLike, maps, surface, *, cameras, rig, me
     with writing(folder / "rig.json"):
         stage.save_rig(folder / "rig.json", rig)
     meta = {**(metadata or {}), "cameras": cams, "rig": "rig.json"}
-    textures = texture_set(maps, surface, surface_info=surface_info, metadata=meta)
+    textures = texture_set(maps, surface, surface_info=surface_info, metadata=meta, seen=seen)
     write_texture_set_files(folder, textures)
     cam = cameras[0]
     scene = None
@@ -104,7 +106,9 @@ def write_fit_folder(folder: str | os.PathLike, fitted, surface, *, cameras, rig
         normals: the fit fitted shading normals.
         subsurface: the subsurface settings of ``relight.fitting.subsurface_step`` (recorded in maps.json and
             reported), or None.
-        coverage: a ``relight.io.PhotoTexelReport`` (coverage.png and the report's ``photos``), or None.
+        coverage: a ``relight.io.PhotoTexelReport`` (coverage.png and the report's ``photos``; the texels it
+            calls unseen are coverage 0 in the map set, hold its fill and are counted apart from the
+            failures), or None.
         timings: seconds per stage so far (``"subsurface_s"`` is the subsurface section's time); the time of
             these writes is added as ``"write_s"``.
         extra: more top-level entries of the report (e.g. ``parts``).
@@ -125,16 +129,17 @@ def write_fit_folder(folder: str | os.PathLike, fitted, surface, *, cameras, rig
     timings = dict(timings or {})
     t0 = time.perf_counter()
     meta = {**(metadata or {}), **({"subsurface": subsurface} if subsurface is not None else {})}
+    seen = None if coverage is None else ~np.asarray(coverage.unseen, bool)
     scene = write_fit_maps(folder, fitted.maps(surface), surface, cameras=cameras, rig=rig, mesh=mesh,
                            surface_info=surface_info, metadata=meta, envmap=envmap,
-                           mean_free_path=subsurface is not None)
+                           mean_free_path=subsurface is not None, seen=seen)
     if coverage is not None:
         with writing(folder / "coverage.png"):
             write_png(folder / "coverage.png", coverage_image(coverage.coverage))
     timings["write_s"] = time.perf_counter() - t0
     # The report reads the fit on the host: NumPy leaves, so its per-sample tests compile nothing.
     fitted = jax.tree_util.tree_map(np.asarray, fitted)
-    report = {**fit_report(fitted, surface, truth, normals=normals, timings=timings), **(extra or {})}
+    report = {**fit_report(fitted, surface, truth, normals=normals, timings=timings, seen=seen), **(extra or {})}
     if subsurface is not None:
         report["subsurface"] = subsurface_report(fitted, subsurface, truth, timings.get("subsurface_s", 0.0))
     if coverage is not None:

@@ -26,6 +26,7 @@ from ._coverage import environment_behind as environment_behind
 from ._coverage import pixel_coverage as pixel_coverage
 from ._coverage import texel_fraction as texel_fraction
 from ._coverage import uncovered_fraction as uncovered_fraction
+from ._coverage import uncovered_pixels as uncovered_pixels
 from ._dense import Dense as Dense
 from ._dense import DenseLighting as DenseLighting
 from ._directional import AbstractDirectional as AbstractDirectional
@@ -117,6 +118,7 @@ __all__ = [
     "texel_fraction",
     "turntable",
     "uncovered_fraction",
+    "uncovered_pixels",
     "unseen_warnings",
     "y_rotations",
 ]

@@ -20,7 +20,7 @@ import stage
 from ..envmap._latlong import EnvMap, sample_latlong
 from ..image._preview import dilate, texture_view
 
-__all__ = ["environment_behind", "pixel_coverage", "texel_fraction", "uncovered_fraction"]
+__all__ = ["environment_behind", "pixel_coverage", "texel_fraction", "uncovered_fraction", "uncovered_pixels"]
 
 # Gutter texels a texel mask is widened by before its lookup, as the renderers widen their maps
 # (relight.render's and relight.image.dilate's two rings), so a chart border is not counted as a gap.
@@ -93,15 +93,20 @@ def texel_fraction(mesh: stage.Mesh, camera: stage.Camera, texels, valid=None, s
     return np.clip(texture_view(mesh, camera, {"t": tex}, supersample=s)["t"][..., 0], 0.0, 1.0).astype(np.float32)
 
 
-def uncovered_fraction(coverage, on_data) -> float:
-    """Of the subject's pixels (``coverage`` >= 0.5), the fraction where less than half of the subject
-    lies on texels with data (``on_data`` < 0.5 ``coverage``; ``on_data`` from :func:`texel_fraction`).
-    0.0 when no pixel is the subject's."""
+def uncovered_pixels(coverage, on_data) -> tuple[int, int]:
+    """``(gaps, subject)``: the subject's pixels (``coverage`` >= 0.5) and, of them, those where less than
+    half of the subject lies on texels with data (``on_data`` < 0.5 ``coverage``; ``on_data`` from
+    :func:`texel_fraction`)."""
     cov = np.asarray(coverage, np.float64)
     on = np.asarray(on_data, np.float64)
     if cov.shape != on.shape:
         raise ValueError(f"coverage {cov.shape} and on_data {on.shape} must have the same shape")
     subject = cov >= _HALF
-    if not subject.any():
-        return 0.0
-    return float(np.mean(on[subject] < _HALF * cov[subject]))
+    return int(np.sum(on[subject] < _HALF * cov[subject])), int(np.sum(subject))
+
+
+def uncovered_fraction(coverage, on_data) -> float:
+    """Of the subject's pixels (``coverage`` >= 0.5), the fraction where less than half of the subject
+    lies on texels with data (:func:`uncovered_pixels`). 0.0 when no pixel is the subject's."""
+    gaps, subject = uncovered_pixels(coverage, on_data)
+    return gaps / subject if subject else 0.0

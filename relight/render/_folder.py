@@ -27,7 +27,7 @@ import stage
 from ..envmap._latlong import EnvMap
 from ..materials._maps import SUBSURFACE
 from ._abstract import AbstractMethod
-from ._coverage import environment_behind, pixel_coverage, texel_fraction, uncovered_fraction
+from ._coverage import environment_behind, pixel_coverage, texel_fraction, uncovered_pixels
 from ._image_based import image_based_view, image_based_weights, relight_photographs, seen_texels
 from ._rig import Rig
 from ._view import render_view, scaled_camera, y_rotations
@@ -40,8 +40,9 @@ __all__ = ["BACKGROUNDS", "FRONT_SIZE", "UNSEEN_WARN", "RenderedFolder", "input_
 BACKGROUNDS = ("black", "env", "alpha")
 # The 'front' camera's pixels (N x N) when no image size is given.
 FRONT_SIZE = 256
-# Fraction of the subject's pixels on texels without data from which a warning is due (one pixel in a
-# thousand: below that, silhouette pixels whose rays graze the texel grid's gutter).
+# Fraction of the subject's pixels on texels without data (no camera saw them: a capture's unseen texels, a
+# map set's filled or missing ones) from which a warning is due (one pixel in a thousand: below that,
+# silhouette pixels whose rays graze the texel grid's gutter).
 UNSEEN_WARN = 1e-3
 
 
@@ -61,7 +62,7 @@ class RenderedFolder(NamedTuple):
         summary: one line saying what was written.
         source: what a viewer's sweep relights: the capture (``capture``, ``surface``, ``mesh``), the
             photographs (``photos``), or the map set (``maps``, ``surface``, ``mesh``, ``method``,
-            ``eta``, ``folder``).
+            ``eta``, ``folder``, ``filled``: whether it fills texels no camera saw).
     """
 
     kind: str
@@ -220,16 +221,37 @@ def render_cameras(camera, mesh: stage.Mesh, image_size: int | None = None, defa
     return cams
 
 
-def unseen_warnings(kind: str, unseen: list, n_cameras: int) -> list[str]:
-    """A warning per camera where at least ``UNSEEN_WARN`` of the subject's pixels lie on texels without data
-    (black: a capture camera never saw them, or the map set holds no fitted sample there)."""
-    why = "no capture camera saw" if kind == "capture" else "the map set holds no fitted sample on"
+def unseen_warnings(kind: str, unseen: list, n_cameras: int, pixels: list | None = None,
+                    filled: bool = False) -> list[str]:
+    """A warning per camera where at least ``UNSEEN_WARN`` of the subject's pixels lie on texels without data.
+
+    Args:
+        kind: the input kind (:func:`input_kind`).
+        unseen: per camera, the fraction of the subject's pixels on texels without data (None: not known).
+        n_cameras: the render cameras.
+        pixels: per camera, ``(gaps, subject)`` pixel counts (:func:`relight.render.uncovered_pixels`), or None.
+        filled: the map set fills the texels no camera saw (``relight.io.TextureSet.filled``): those pixels
+            show the fill; otherwise they are black (a capture camera never saw them, or the map set holds no
+            fitted sample there).
+
+    Returns:
+        The warnings, one line each.
+    """
+    if kind == "capture":
+        why, shown = "no capture camera saw", "they are black in relit.exr (no data there)"
+    elif filled:
+        why = "no capture camera saw"
+        shown = ("they show the map set's fill (the nearest seen texel's material, maps.json 'unseen'), not a "
+                 "measurement: capture views that see those regions, or render from a camera closer to the "
+                 "capture's")
+    else:
+        why, shown = "the map set holds no fitted sample on", "they are black in relit.exr (no data there)"
     out = []
     for k, u in enumerate(unseen):
         if u is not None and u >= UNSEEN_WARN:
             cam = "" if n_cameras == 1 else f" (camera {k})"
-            out.append(f"warning{cam}: {100 * u:.1f}% of the subject's pixels lie on texels {why}; "
-                       "they are black in relit.exr (no data there)")
+            count = "" if pixels is None else f" ({pixels[k][0]} of {pixels[k][1]})"
+            out.append(f"warning{cam}: {100 * u:.1f}% of the subject's pixels{count} lie on texels {why}; {shown}")
     return out
 
 
@@ -279,7 +301,7 @@ def _capture_views(src: Path, env: EnvMap, angles, camera, image_size, progress)
     for cam in cameras:
         frames = image_based_view(capture, surface, mesh, cam, env, rotations=y_rotations(angles))
         cov = pixel_coverage(mesh, cam)
-        views.append((list(frames), cov, uncovered_fraction(cov, texel_fraction(mesh, cam, seen, valid=held))))
+        views.append((list(frames), cov, uncovered_pixels(cov, texel_fraction(mesh, cam, seen, valid=held))))
         bar.advance(len(angles))
     source = {"capture": capture, "surface": surface, "mesh": mesh}
     return views, cameras, "rig (the capture's own OLAT images)", None, mesh, source
@@ -312,9 +334,13 @@ def _map_set_views(src: Path, env: EnvMap, angles, method: AbstractMethod, rig_d
             frames.append(np.asarray(img, np.float32))
             bar.advance(1)
         cov = pixel_coverage(tm.mesh, cam)
-        views.append((frames, cov, uncovered_fraction(cov, texel_fraction(tm.mesh, cam, tm.textures.coverage))))
+        # Texels with data: those a camera saw (coverage); filled ones (no camera saw them) hold the set's fill,
+        # so they count as gaps, not as gutter to pad from their neighbours.
+        on = texel_fraction(tm.mesh, cam, tm.textures.coverage, valid=tm.textures.coverage | tm.textures.filled)
+        views.append((frames, cov, uncovered_pixels(cov, on)))
     label = method.name + ("" if desc is None else f" ({desc})")
-    source = {"maps": tm.maps, "surface": tm.surface, "mesh": tm.mesh, "method": method, "folder": src, **settings}
+    source = {"maps": tm.maps, "surface": tm.surface, "mesh": tm.mesh, "method": method, "folder": src, **settings,
+              "filled": bool(tm.textures.filled.any())}
     return views, cameras, label, subsurface, tm.mesh, source
 
 
@@ -391,7 +417,8 @@ def render_folder(src: str | os.PathLike, envmap: str | os.PathLike | None, out:
     names = ["relit"] if len(angles) == 1 else [f"relit_{k:03d}" for k in range(len(angles))]
     folders = [""] if len(cameras) == 1 else [f"cam{k:03d}/" for k in range(len(cameras))]
     outputs = [f"{d}{n}.exr" for d in folders for n in names]
-    unseen = [u for _, _, u in views]
+    pixels = [[int(g), int(n)] for _, _, (g, n) in views]
+    unseen = [g / n if n else 0.0 for g, n in pixels]
     cam_docs = [stage.camera_to_dict(c) for c in cameras]
     for folder, cam, doc, (frames, cov, _) in zip(folders, cameras, cam_docs, views, strict=True):
         if folder:
@@ -415,13 +442,15 @@ def render_folder(src: str | os.PathLike, envmap: str | os.PathLike | None, out:
                     image_size=[[c.width, c.height] for c in cameras], background=background,
                     preview_exposure_stops=exposure,
                     exposure_from="--exposure" if given is not None else "subject median luminance",
-                    unseen_pixel_fraction=unseen, seconds=round(seconds, 3), subsurface=subsurface, outputs=outputs)
+                    unseen_pixel_fraction=unseen, unseen_pixels=pixels, unseen_warn=UNSEEN_WARN,
+                    seconds=round(seconds, 3), subsurface=subsurface, outputs=outputs)
     tail = "" if subsurface is None else (f", subsurface on {subsurface['samples']} texels "
                                           f"(eta {subsurface['eta']:g})")
     cams = "" if len(cameras) == 1 else f" x {len(cameras)} cameras"
     summary = f"({len(angles)} frame(s){cams}, {kind}, method {label}{tail})"
     return RenderedFolder(kind, resolved, outputs, [out / f"{folders[0]}{n}.png" for n in names], angles, exposure,
-                          tuple(cameras), unseen_warnings(kind, unseen, len(cameras)), summary, source)
+                          tuple(cameras), unseen_warnings(kind, unseen, len(cameras), pixels,
+                                                          source.get("filled", False)), summary, source)
 
 
 def _render_photos(src: Path, env: EnvMap, envmap: Path, out: Path, angles, background: str, exposure, rig_units,
