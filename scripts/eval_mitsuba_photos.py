@@ -119,6 +119,7 @@ def capture_cameras(mesh, n: int, size: int):
     """``stage.front_ring``'s cameras (80 degrees around the front) with the principal point moved off the
     image centre by PRINCIPAL_OFFSET (the Camera's continuous convention)."""
     import jax.numpy as jnp
+
     import stage
 
     out = []
@@ -496,8 +497,13 @@ def command(s: dict) -> str:
 def markdown(result: dict, total_s: float) -> str:
     s, rd, p = result["settings"], result["render"], result["projection_max_px"]
     agree = max(c["sensor_agreement_px"] for c in rd["cameras"])
+    exported = max(c["exported_sensor_agreement_px"] for c in rd["cameras"])
+    mirrored = ""
+    if any(c["principal_point_mirrored"] for c in rd["cameras"]):
+        mirrored = (f" (rendered with the principal-point offset negated: `write_mitsuba_scene`'s sensor as "
+                    f"exported lands {exported:.3g} px off, its offset mirrored; see `exported_sensor`)")
     return "\n".join([
-        f"# A Mitsuba-rendered photo capture, read four ways", "",
+        "# A Mitsuba-rendered photo capture, read four ways", "",
         f"Mitsuba 3 (scalar_rgb, {s['spp']} spp, direct light) renders the bundled head under {s['lights']} "
         f"Light Stage X lights (point emitters) from {s['cameras']} cameras ({s['size']} x {s['size']} px, "
         f"principal point off centre by {s['principal_offset'][0]:+.2f} W, {s['principal_offset'][1]:+.2f} H); "
@@ -508,11 +514,11 @@ def markdown(result: dict, total_s: float) -> str:
         f"`relight.fit(model=\"ggx\")`. Medians over each reading's fitted texels (seen by >= 1 camera, not "
         f"flagged; {result['common_texels']} fitted by all four).", "",
         table(result), "",
-        f"Projections of the mesh's {'vertices'} against (a): `stage.read_colmap`'s cameras as read "
+        f"Projections of the mesh's vertices against (a): `stage.read_colmap`'s cameras as read "
         f"{p['read_colmap']:.2g} px; a hand-converted file saying \"colmap\" at the file level only: "
         f"{p['file_level_only_load_cameras']:.2g} px through `stage.load_cameras`, "
         f"{p['file_level_only_read_photo_capture']:.2g} px through `read_photo_capture`. Mitsuba's sensor rays "
-        f"project through (a)'s cameras onto their film positions to {agree:.2g} px.", "",
+        f"project through (a)'s cameras onto their film positions to {agree:.2g} px{mirrored}.", "",
         f"Machine: {machine()}. Render {rd['render_s']:.0f} s, total {total_s:.0f} s.", "",
         f"Regenerate: `{command(s)}`", ""])
 
