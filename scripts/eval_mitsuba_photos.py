@@ -145,17 +145,12 @@ def opencv_cameras_doc(cameras, names) -> dict:
     return {"convention": "opencv", "units": "mm", "cameras": cams}
 
 
-def _edit_scene(xml_path: Path, out_path: Path, lights: bool, mirror_principal_point: bool = False) -> Path:
+def _edit_scene(xml_path: Path, out_path: Path, lights: bool) -> Path:
     """A copy of write_mitsuba_scene's scene.xml without its environment emitter: with one ``point`` emitter
     (id "light", moved per light through ``mi.traverse``), or (``lights`` False) with the mesh an area emitter
-    of radiance 1 seen directly (``max_depth`` 1): each pixel's coverage by the mesh. ``mirror_principal_point``
-    negates the sensor's ``principal_point_offset_x/y`` (see :func:`exported_sensor`)."""
+    of radiance 1 seen directly (``max_depth`` 1): each pixel's coverage by the mesh."""
     tree = ET.parse(xml_path)
     root = tree.getroot()
-    if mirror_principal_point:
-        for f in root.find("sensor").findall("float"):
-            if f.get("name", "").startswith("principal_point_offset_"):
-                f.set("value", repr(-float(f.get("value"))))
     for em in root.findall("emitter"):
         root.remove(em)
     if lights:
@@ -197,23 +192,6 @@ def sensor_agreement(mi, scene, camera, n: int = 64, seed: int = 0) -> float:
     return float(np.max(np.abs(np.asarray(pix, np.float64) - film * [W, H])))
 
 
-def exported_sensor(mi, xml: Path, camera, seed: int = 0) -> tuple[bool, float]:
-    """Whether the sensor ``write_mitsuba_scene`` wrote needs its principal-point offset negated to match
-    ``camera``, and its own agreement (px, :func:`sensor_agreement`). Mitsuba applies
-    ``principal_point_offset_x/y`` in its camera frame (x left, y up), so an offset written as
-    (cx - W/2) / W moves the principal point the other way (measured with Mitsuba 3.9); the capture must be
-    rendered where the cameras.json says, so the script renders with the offset that agrees, and records both."""
-    exported = sensor_agreement(mi, mi.load_file(str(xml)), camera, seed=seed)
-    if exported <= SENSOR_TOL_PX:
-        return False, exported
-    mirrored = sensor_agreement(mi, mi.load_file(str(_edit_scene(xml, xml.with_name("mirrored.xml"), True, True))),
-                                camera, seed=seed)
-    if mirrored > SENSOR_TOL_PX:
-        raise RuntimeError(f"{xml}: Mitsuba's sensor disagrees with the camera by {exported:.3g} px as exported "
-                           f"and {mirrored:.3g} px with the principal point mirrored")
-    return True, exported
-
-
 def render_capture(folder: Path, mesh, surface, maps, rig, cameras, names, spp: int, work: Path,
                    progress=print) -> dict:
     """Render the OLAT capture with Mitsuba and write it to ``folder`` in the relight-photos layout.
@@ -238,13 +216,12 @@ def render_capture(folder: Path, mesh, surface, maps, rig, cameras, names, spp: 
     for v, (cam, name) in enumerate(zip(cameras, names, strict=True)):
         xml = write_mitsuba_scene(work / f"scene_{name}", mesh, textures, cam, black, spp=spp, max_depth=2,
                                   fresnel="schlick")
-        mirror, exported = exported_sensor(mi, xml, cam, seed=v)
-        cover_scene = mi.load_file(str(_edit_scene(xml, xml.with_name("coverage.xml"), False, mirror)))
+        cover_scene = mi.load_file(str(_edit_scene(xml, xml.with_name("coverage.xml"), False)))
         cover = np.asarray(mi.render(cover_scene, spp=MASK_SPP, seed=10_000 + v), np.float64)[..., 0]
         mask = _erode(cover >= 1.0 - 1e-6)
         (folder / name).mkdir()
         write_png(folder / name / "mask.png", np.where(mask, 255, 0).astype(np.uint8))
-        scene = mi.load_file(str(_edit_scene(xml, xml.with_name("olat.xml"), True, mirror)))
+        scene = mi.load_file(str(_edit_scene(xml, xml.with_name("olat.xml"), True)))
         agree = sensor_agreement(mi, scene, cam, seed=v)
         if agree > SENSOR_TOL_PX:
             raise RuntimeError(f"{name}: Mitsuba's sensor and the camera disagree by {agree:.3g} px")
@@ -261,8 +238,7 @@ def render_capture(folder: Path, mesh, surface, maps, rig, cameras, names, spp: 
             write_png(folder / name / f"l{l:03d}.png", np.clip(counts, 0, 65535).astype(np.uint16))
             if progress and (l + 1) % max(1, L // 4) == 0:
                 progress(f"  rendered {name}: {l + 1}/{L} lights ({time.perf_counter() - t0:.0f} s)")
-        per_cam.append({"camera": name, "mask_pixels": int(mask.sum()), "sensor_agreement_px": agree,
-                        "exported_sensor_agreement_px": exported, "principal_point_mirrored": mirror})
+        per_cam.append({"camera": name, "mask_pixels": int(mask.sum()), "sensor_agreement_px": agree})
     (folder / "cameras.json").write_text(json.dumps(opencv_cameras_doc(cameras, names), indent=1) + "\n")
     rig_doc = {"positions": pos.tolist(), "intensities": inten.tolist(), "units": "mm", "up": "+y",
                "near_field": True}
@@ -497,11 +473,6 @@ def command(s: dict) -> str:
 def markdown(result: dict, total_s: float) -> str:
     s, rd, p = result["settings"], result["render"], result["projection_max_px"]
     agree = max(c["sensor_agreement_px"] for c in rd["cameras"])
-    exported = max(c["exported_sensor_agreement_px"] for c in rd["cameras"])
-    mirrored = ""
-    if any(c["principal_point_mirrored"] for c in rd["cameras"]):
-        mirrored = (f" (rendered with the principal-point offset negated: `write_mitsuba_scene`'s sensor as "
-                    f"exported lands {exported:.3g} px off, its offset mirrored; see `exported_sensor`)")
     return "\n".join([
         "# A Mitsuba-rendered photo capture, read four ways", "",
         f"Mitsuba 3 (scalar_rgb, {s['spp']} spp, direct light) renders the bundled head under {s['lights']} "
@@ -518,7 +489,8 @@ def markdown(result: dict, total_s: float) -> str:
         f"{p['read_colmap']:.2g} px; a hand-converted file saying \"colmap\" at the file level only: "
         f"{p['file_level_only_load_cameras']:.2g} px through `stage.load_cameras`, "
         f"{p['file_level_only_read_photo_capture']:.2g} px through `read_photo_capture`. Mitsuba's sensor rays "
-        f"project through (a)'s cameras onto their film positions to {agree:.2g} px{mirrored}.", "",
+        f"project through (a)'s cameras onto their film positions to {agree:.2g} px (`write_mitsuba_scene`'s "
+        f"sensor as exported).", "",
         f"Machine: {machine()}. Render {rd['render_s']:.0f} s, total {total_s:.0f} s.", "",
         f"Regenerate: `{command(s)}`", ""])
 

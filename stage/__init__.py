@@ -15,6 +15,7 @@ from ._camera import Camera as Camera
 from ._camera import camera_from_dict as camera_from_dict
 from ._camera import camera_ring as camera_ring
 from ._camera import camera_to_dict as camera_to_dict
+from ._camera import cameras_from_doc as cameras_from_doc
 from ._camera import distort as distort
 from ._camera import load_cameras as load_cameras
 from ._camera import look_at as look_at

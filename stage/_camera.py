@@ -399,7 +399,7 @@ def _file_frame(doc: Mapping, where: str, convention: str) -> tuple[float, np.nd
         raise ValueError(f"{where}: field {misnamed[0]!r} is not read; lens distortion goes in 'distortion' "
                          "(OpenCV's [k1, k2, p1, p2, k3])")
     convention = doc.get("convention", convention)
-    if convention not in CONVENTIONS:
+    if not isinstance(convention, str) or convention not in CONVENTIONS:
         raise ValueError(f"{where}: field 'convention' must be one of {sorted(CONVENTIONS)} (\"opencv\": the "
                          f"top-left pixel's centre at (0, 0); \"colmap\": at (0.5, 0.5)), got {convention!r}")
     return CONVENTIONS[convention], _distortion_field(doc.get("distortion"), where)
@@ -447,18 +447,25 @@ def load_cameras(path) -> tuple[Camera, ...]:
     ValueError naming the file, the camera and the field when one is missing or
     malformed (see ``camera_from_dict``)."""
     path = Path(path)
-    doc = read_json(path, "camera file")
+    return cameras_from_doc(read_json(path, "camera file"), path)
+
+
+def cameras_from_doc(doc: object, where: str | Path) -> tuple[Camera, ...]:
+    """The cameras of a camera file's parsed JSON (:func:`load_cameras`' forms): its file-level ``units`` and
+    ``convention`` checked and passed on as the default of each camera (:func:`camera_from_dict`). ValueError
+    starting with ``where`` (the file) and naming the camera and the field."""
     if isinstance(doc, Mapping):
         cams = doc.get("cameras")
         if not isinstance(cams, list) or not cams:
-            raise ValueError(f"{path}: expected a non-empty 'cameras' list")
+            raise ValueError(f"{where}: expected a non-empty 'cameras' list")
         if "units" in doc and doc["units"] != UNITS:
-            raise ValueError(f"{path}: field 'units' must be {UNITS!r}, got {doc['units']!r}")
+            raise ValueError(f"{where}: field 'units' must be {UNITS!r}, got {doc['units']!r}")
         convention = doc.get("convention", CONVENTION)
-        if convention not in CONVENTIONS:
-            raise ValueError(f"{path}: field 'convention' must be one of {sorted(CONVENTIONS)}, got {convention!r}")
+        if not isinstance(convention, str) or convention not in CONVENTIONS:
+            raise ValueError(f"{where}: field 'convention' must be one of {sorted(CONVENTIONS)}, got {convention!r}")
     elif isinstance(doc, list) and doc:
         cams, convention = doc, CONVENTION
     else:
-        raise ValueError(f"{path}: expected an object with a non-empty 'cameras' list, or a non-empty list of cameras")
-    return tuple(camera_from_dict(c, f"{path}: camera {i}", convention) for i, c in enumerate(cams))
+        raise ValueError(f"{where}: expected an object with a non-empty 'cameras' list, or a non-empty list of "
+                         "cameras")
+    return tuple(camera_from_dict(c, f"{where}: camera {i}", convention) for i, c in enumerate(cams))

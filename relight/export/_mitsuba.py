@@ -321,8 +321,11 @@ def write_mitsuba_scene(folder: str | os.PathLike, mesh_path, textures, camera, 
     _sub(sensor, "float", name="fov", value=f"{fov:.9g}")
     _sub(sensor, "float", name="near_clip", value="1")
     _sub(sensor, "float", name="far_clip", value="100000")
-    ppx = (K[0, 2] - 0.5 * camera.width) / camera.width
-    ppy = (K[1, 2] - 0.5 * camera.height) / camera.height
+    # Mitsuba's ray for film position s goes through its centred camera's s + offset (perspective.cpp,
+    # sample_ray), so the principal point sits at s = 1/2 - offset: the offset is minus cx's (cy's) distance
+    # from the film's centre, as fractions of the film (the Camera's continuous pixel coordinates).
+    ppx = (0.5 * camera.width - K[0, 2]) / camera.width
+    ppy = (0.5 * camera.height - K[1, 2]) / camera.height
     if abs(ppx) > 1e-9 or abs(ppy) > 1e-9:
         _sub(sensor, "float", name="principal_point_offset_x", value=f"{ppx:.9g}")
         _sub(sensor, "float", name="principal_point_offset_y", value=f"{ppy:.9g}")

@@ -80,8 +80,8 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     ``resolution``, ``stage.texel_samples``).
 
     For each camera (read one at a time, ``PhotoCapture.read_view``), every
-    texel centre is projected (``stage.project_texels``: ``stage.Camera.project``; distortion, if
-    recorded, is not applied: the photographs are taken as undistorted) and
+    texel centre is projected (``stage.project_texels``: ``stage.Camera.project``, through the
+    camera's lens distortion) and
     rejected when it is behind the camera or its bilinear footprint leaves the
     image, back-facing (n . wo <= 0) or grazing (theta_o > ``grazing_deg``),
     outside the camera's mask (any of its four taps), or occluded (a segment

@@ -173,7 +173,7 @@ class PhotoCapture:
                       for i, e in enumerate(entries)]
         if len(set(self.names)) != len(self.names):
             raise _err(cam_path, f"camera names must be distinct, got {self.names}")
-        cams = [stage.camera_from_dict(e, f"{cam_path}: camera {i}") for i, e in enumerate(entries)]
+        cams = stage.cameras_from_doc(doc, cam_path)  # the file's convention and units apply to every camera
         self.distortion = [_distortion(c) for c in cams]
         # the views
         defaults = {k: info[k] for k in ("images", "encoding", "exposure", "gain", "saturation", "mask") if k in info}

@@ -178,8 +178,10 @@ def test_image_size_scales_a_camera_files_cameras(setup):
     assert main(["render", str(cap), "--camera", cams, "--image-size", "16", "--out", str(half), "--quiet"]) == 0
     a, b = read_exr(full / "relit.exr")[..., 3], read_exr(half / "relit.exr")[..., 3]
     assert b.shape == (16, 16)
-    K = np.array(_settings(half)["camera"]["K"])
-    np.testing.assert_allclose(K, np.diag([0.5, 0.5, 1.0]) @ np.array(_settings(full)["camera"]["K"]), rtol=1e-6)
+    # Halved in continuous coordinates: the files' K is OpenCV's (pixel centres at integers), + 0.5 on cx, cy.
+    shift = np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
+    K_half, K_full = (np.array(_settings(f)["camera"]["K"]) + shift for f in (half, full))
+    np.testing.assert_allclose(K_half, np.diag([0.5, 0.5, 1.0]) @ K_full, rtol=1e-6)
     assert np.abs(a.reshape(16, 2, 16, 2).mean(axis=(1, 3)) - b).mean() < 0.05
 
 

@@ -50,10 +50,8 @@ def test_the_three_correct_readings_project_alike_and_the_misreading_by_half_a_p
     assert p["misread"] == pytest.approx(0.5, abs=PROJECTION_TOL_PX)
 
 
-@pytest.mark.xfail(strict=True, reason="relight.io.read_photo_capture ignores a camera file's file-level "
-                                       "'convention' (it reads every camera as OpenCV unless the camera itself "
-                                       "says otherwise), unlike stage.load_cameras")
 def test_read_photo_capture_honours_a_file_level_convention(result):
+    """A file that says "colmap" only at its top applies it to every camera (stage.cameras_from_doc)."""
     _, r = result
     assert r["projection_max_px"]["file_level_only_read_photo_capture"] <= PROJECTION_TOL_PX
 
