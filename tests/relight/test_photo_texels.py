@@ -38,7 +38,8 @@ def scene(tmp_path_factory):
     rig = stage.geodesic_dome(2)
     v = np.asarray(mesh.vertices, np.float64)
     c = tuple(0.5 * (v.min(0) + v.max(0)))
-    cams = stage.camera_ring(3, 1300.0, target=c, fov_deg=14.0, width=SIZE, height=SIZE, start_deg=-40, arc_deg=80)
+    # 20 degrees at 1.3 m frame the life-size head and shoulders (394 mm across) whole.
+    cams = stage.camera_ring(3, 1300.0, target=c, fov_deg=20.0, width=SIZE, height=SIZE, start_deg=-40, arc_deg=80)
     images, masks = [], []
     for cam in cams:
         s = stage.image_samples(mesh, cam)
