@@ -50,10 +50,10 @@ def test_demo_end_to_end(demo_output):
     """`relight demo` at a small size (32^2 texels, 2 cameras, 48 px, 1% noise;
     conftest's demo_output, the run's one demo, whose page test_view.py checks):
     the textured head with subsurface, the full ladder, truth and fit relit by
-    the same renderer. Bars (a 32^2 grid: 5 mm texels, where the mean free path
+    the same renderer. Bars (a 32^2 grid: 9 mm texels, where the mean free path
     is barely identifiable; the full-size numbers are in docs/RESULTS.md):
     albedo median within 5%, normals within 2 degrees, relit PSNR above 20 dB
-    (measured 24.5 dB in CI; 37.4 dB at the default 96^2 and 3 cameras), < 5%
+    (42.0 dB at the default 96^2 and 3 cameras, docs/RESULTS.md), < 5%
     flagged, every number finite, every output written."""
     out = demo_output
     report = json.loads((out / "report.json").read_text())
