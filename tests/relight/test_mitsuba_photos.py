@@ -30,7 +30,7 @@ MISREAD_FACTOR = 2.0
 def result(tmp_path_factory):
     pytest.importorskip("mitsuba", reason="Mitsuba 3 renders the capture (a test extra: pip install -e '.[test]')")
     script = load_script("eval_mitsuba_photos")
-    return script, script.run(**SMALL, work=tmp_path_factory.mktemp("mitsuba_photos"), progress=None)
+    return script, script.run(**SMALL, work=tmp_path_factory.mktemp("mitsuba_photos"), progress=None, ladder=False)
 
 
 def test_mitsuba_renders_where_the_cameras_say(result):
