@@ -41,6 +41,7 @@ from ._gradient import gradient_weights as gradient_weights
 from ._gradient import specular_normals as specular_normals
 from ._image import image_samples as image_samples
 from ._mesh import HEAD_SCALE_MM as HEAD_SCALE_MM
+from ._mesh import LENGTH_UNITS_MM as LENGTH_UNITS_MM
 from ._mesh import MAX_COORDINATE_MM as MAX_COORDINATE_MM
 from ._mesh import Mesh as Mesh
 from ._mesh import MeshReport as MeshReport

@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from ._camera import Camera, camera_from_dict
+from ._mesh import LENGTH_UNITS_MM
 
 # The length units a caller may name instead of a number of millimetres per unit.
-UNIT_NAMES = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+UNIT_NAMES = LENGTH_UNITS_MM
 
 # The pixel conventions of stage._camera.CONVENTIONS by what they mean: the top-left pixel's centre at (0, 0)
 # (OpenCV: cx, cy gain 0.5 in a Camera) or at (0.5, 0.5) (COLMAP, Metashape and the Camera itself: no shift).

@@ -14,6 +14,9 @@ import trimesh
 # 46 mm per unit puts each within about 7% (217, 166 and 209 mm; the shoulders' 8.6 units become 394 mm).
 HEAD_SCALE_MM = 46.0
 
+# Millimetres per length unit, for every file that names its unit (meshes, rig files, camera calibrations).
+LENGTH_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+
 # The largest coordinate (mm, after ``scale``) load_mesh accepts: 1000 km, far beyond any stage, and small
 # enough that squares (1e18: areas, squared distances) and cubes (1e27) stay well inside float32's 3.4e38.
 # A mesh in the wrong unit by 1e35 would otherwise give Inf areas and NaN normals deep inside sampling.

@@ -47,13 +47,13 @@ from pathlib import Path
 import numpy as np
 
 from ._files import read_json, read_light_table
-from ._mesh import MAX_COORDINATE_MM
+from ._mesh import LENGTH_UNITS_MM, MAX_COORDINATE_MM
 from ._rig import _LSX_DUPLICATE_ROW, _LSX_DUPLICATED_ROW, _LSX_ORIGINAL_VALUE_CM, Rig, calibrate
 from ._rig_io import position_array, position_key, rig_from_dict
 
 __all__ = ["AXES", "POSITION_UNITS", "load_rig_file", "rig_file_subsets", "up_rotation"]
 
-POSITION_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "directions": None}
+POSITION_UNITS = {**LENGTH_UNITS_MM, "directions": None}
 AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
 _AXIS_ALIASES = {"x": "+x", "y": "+y", "z": "+z"}
 # A gap in the lights this many times wider than their typical spacing is

@@ -34,8 +34,8 @@ __all__ = ["SampleSubset", "TexelCapture", "TexelMaps", "load_texel_capture", "l
            "mesh_spec", "open_texel_capture", "spec_mesh", "texel_surface", "MESH_UNITS"]
 
 
-# Length units a mesh file may be in, as millimetres per unit.
-MESH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+# Length units a mesh file may be in, as millimetres per unit (stage's one table).
+MESH_UNITS = stage.LENGTH_UNITS_MM
 # A mesh whose bounding-box diagonal is outside this fraction of the rig's
 # radius is implausible: a face fills 10-40% of a light stage; below 5% it is
 # almost surely in other units, above 150% it does not fit inside the lights.
