@@ -47,7 +47,7 @@ def test_corrupt_envmap_names_the_file(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_demo_end_to_end(demo_output):
-    """`relight demo` at a small size (32^2 texels, 2 cameras, 48 px, 1% noise;
+    """`relight demo` at a small size (32^2 texels, 1 camera, 48 px, 1% noise;
     conftest's demo_output, the run's one demo, whose page test_view.py checks):
     the textured head with subsurface, the full ladder, truth and fit relit by
     the same renderer. Bars (a 32^2 grid: 9 mm texels, where the mean free path
@@ -64,7 +64,7 @@ def test_demo_end_to_end(demo_output):
     assert e["mfp_rel"]["samples"] == 3 * report["texels_seen"]  # texel-channels
     assert "errors" not in report and "deprecated_error_keys" not in report
     assert report["relit_psnr_db"] > 20.0 and report["flagged_fraction"] < 0.05
-    assert report["cameras"] == 2 and report["lights"] == 346 and report["noise_relative_at_median"] == 0.01
+    assert report["cameras"] == 1 and report["lights"] == 346 and report["noise_relative_at_median"] == 0.01
     assert abs(sum(report["model_fraction"].values()) - 1) < 1e-9
     assert set(report["timings_s"]) >= {"simulate", "fit", "relight"}
     for name in ("preview.png", "relit_truth.exr", "relit_fit.exr", "maps/albedo.exr", "maps/mean_free_path.exr",

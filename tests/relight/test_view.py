@@ -6,7 +6,7 @@ relighting of each rotation; report.md is rendered with its markup escaped.
 
 One tiny output per command, made once for the module: simulate (the head at 12 x 12 texels under a 42-light
 dome, one 32 x 32 camera), fit (Gauss-Newton), render of the map set and a 4-frame turntable of the capture;
-the demo is the run's one (conftest's demo_output, 32 x 32 texels, 2 cameras), whose physics test_cli.py
+the demo is the run's one (conftest's demo_output, 32 x 32 texels, 1 camera), whose physics test_cli.py
 tests and whose page is tested here.
 The browser tests skip, saying why, where Chromium is absent (``.ci/run`` installs it)."""
 
