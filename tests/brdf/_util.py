@@ -63,3 +63,16 @@ def ev(m, wi, wo):
 def ev_pairs(m, wi, wo):
     """One material (0-d or [C] parameters) over [N, 3] pairs."""
     return jax.vmap(m)(wi, wo)
+
+
+@fjit(static_argnums=(1, 2))
+def edge_case_pairs(key, n, dtype=jnp.float64):
+    """brdf.check.edge_case_pairs as one compiled program: called eagerly it runs
+    some thirty small ops, each compiled again for every new n and dtype (seconds)."""
+    return brdf.check.edge_case_pairs(key, n, dtype)
+
+
+@fjit(static_argnums=(1, 2))
+def example_models(key, n, dtype=jnp.float64):
+    """brdf.check.example_models as one compiled program (eager, it compiles every op)."""
+    return brdf.check.example_models(key, n, dtype)

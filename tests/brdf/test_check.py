@@ -7,7 +7,7 @@ import pytest
 from jaxtyping import Array, Float
 
 import brdf
-from tests.brdf._util import from_cos
+from tests.brdf._util import edge_case_pairs, from_cos
 from tests.helpers import REFUSED, assert_close
 
 
@@ -46,7 +46,7 @@ def test_albedo_of_lambert_by_quadrature_and_mc(key):
 
 
 def test_checks_catch_a_bad_model(key):
-    wi, wo = brdf.check.edge_case_pairs(key, 512)
+    wi, wo = edge_case_pairs(key, 512)
     bad = _Unguarded(jnp.asarray(1.0))
     report = brdf.check.stability(bad, wi, wo)
     assert report["value"] and not report["grad_directions"] and not report["nonnegative"]

@@ -15,7 +15,7 @@ import pytest
 
 import brdf
 from brdf._nbrdf import NBRDF, directional_albedo_half, load_nbrdf, nbrdf_encoding, nbrdf_names
-from tests.brdf._util import ev, fjit
+from tests.brdf._util import edge_case_pairs, ev, fjit
 
 FOLDER_PART = ("measured_brdf", "merl_nbrdf")
 # The 80 networks of ../shared/data/measured_brdf (README.md).
@@ -140,14 +140,14 @@ def test_loader_errors_name_the_file(folder, tmp_path):
 
 
 def test_nonnegative_finite_and_stable_every_material(folder, key):
-    wi, wo = brdf.check.edge_case_pairs(key, 4096, jnp.float32)
+    wi, wo = edge_case_pairs(key, 4096, jnp.float32)
     worst = np.inf
     for name in nbrdf_names(folder):
         m = _one(folder, name)
         worst = min(worst, float(brdf.check.min_value(m, wi, wo)))
     assert worst >= 0.0  # the clamp of exp(y) - 1 < 0 holds for all 80
     # values, direction gradients and weight gradients finite at the edge cases (float64)
-    wi64, wo64 = brdf.check.edge_case_pairs(key, 1024)
+    wi64, wo64 = edge_case_pairs(key, 1024)
     for name in ("chrome-steel", "white-fabric"):
         s = brdf.check.stability(_one(folder, name), wi64, wo64)
         assert s == {"value": True, "grad_directions": True, "grad_params": True, "nonnegative": True}, name

@@ -9,7 +9,7 @@ import pytest
 
 import brdf
 import brdf._poulin_fournier as pf
-from tests.brdf._util import edge_directions, ev_pairs, fjit, from_cos
+from tests.brdf._util import edge_case_pairs, edge_directions, ev_pairs, fjit, from_cos
 from tests.helpers import assert_close, assert_finite
 
 GEOMETRIES = [(0.0, 1.0), (0.5, 1.0), (0.0, 0.5), (0.5, 0.5), (2.0, 0.2)]  # (spacing d, height h)
@@ -72,7 +72,7 @@ def test_shadowing_matches_ray_cast():
 def test_nonnegative_and_reciprocal(d, h):
     m = brdf.PoulinFournier(0.2, 0.7, 30.0, d, h)
     wi, wo = brdf.check.random_pairs(jax.random.PRNGKey(1), 4096)
-    ei, eo = brdf.check.edge_case_pairs(jax.random.PRNGKey(2), 1024)
+    ei, eo = edge_case_pairs(jax.random.PRNGKey(2), 1024)
     wi, wo = jnp.concatenate([wi, ei]), jnp.concatenate([wo, eo])
     assert float(brdf.check.min_value(m, wi, wo)) >= 0
     # the lit-and-visible set and the integrand are symmetric in wi and wo, and so
@@ -175,7 +175,7 @@ def test_quadrature_error_against_ten_times_the_nodes(monkeypatch):
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_finite_values_and_gradients_at_edges(dtype):
-    wi, wo = brdf.check.edge_case_pairs(jax.random.PRNGKey(10), 2048, dtype)
+    wi, wo = edge_case_pairs(jax.random.PRNGKey(10), 2048, dtype)
     ei, eo = edge_directions(dtype)
     wi, wo = jnp.concatenate([wi, ei]), jnp.concatenate([wo, eo])
     # the extremes: exponent at 1e4 and 0, height below its floor

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import pytest
 
 import brdf
+from tests.brdf._util import edge_case_pairs, example_models
 
 N_PAIRS = 1 << 12  # per dtype; every model sees every pair
 
@@ -15,8 +16,8 @@ N_PAIRS = 1 << 12  # per dtype; every model sees every pair
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_sweep_all_models(dtype, key):
     k1, k2 = jax.random.split(key)
-    wi, wo = brdf.check.edge_case_pairs(k1, N_PAIRS, dtype)
-    models = brdf.check.example_models(k2, N_PAIRS, dtype)
+    wi, wo = edge_case_pairs(k1, N_PAIRS, dtype)
+    models = example_models(k2, N_PAIRS, dtype)
     # One program for all models keeps the test fast; a NaN or Inf in any term
     # (value or gradient w.r.t. its own parameters) propagates into the result.
     total = brdf.Sum(*models.values())
