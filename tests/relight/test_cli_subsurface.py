@@ -31,7 +31,7 @@ SKIN1_MFP = np.array([3.6733, 1.3665, 0.68269])
 
 def _sim(mesh, out, *extra, res=RES):
     return main(["simulate", "--mesh", str(mesh), "--rig", "dome:42", "--resolution", str(res), "--image-size", "32",
-                 "--out", str(out), "--quiet", *extra])
+                 "--out", str(out), "--quiet", "--no-index", *extra])
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def sss(tmp_path_factory):
     mesh = write_sphere_obj(root / "sphere.obj", RADIUS, 24, 48)
     cap, maps = root / "capture", root / "maps"
     assert _sim(mesh, cap, "--subsurface", PRESET) == 0
-    assert main(["fit", str(cap), "--subsurface", "region", "--out", str(maps), "--quiet"]) == 0
+    assert main(["fit", str(cap), "--subsurface", "region", "--out", str(maps), "--quiet", "--no-index"]) == 0
     white = root / "white.exr"
     write_exr(white, np.ones((16, 32, 3), np.float32))
     # The truth with the subsurface rung replaced by the local Lambert term (GGX rung): the control.
@@ -105,7 +105,8 @@ def test_a_second_pass_removes_the_lobe_bias(sss, tmp_path):
     _, _, cap, maps, _, _ = sss
     one = np.array(json.loads((maps / "report.json").read_text())["subsurface"]["mfp_median_mm"])
     out = tmp_path / "two"
-    assert main(["fit", str(cap), "--subsurface", "region", "--passes", "2", "--out", str(out), "--quiet"]) == 0
+    assert main(["fit", str(cap), "--subsurface", "region", "--passes", "2", "--out", str(out), "--quiet",
+                 "--no-index"]) == 0
     ss = json.loads((out / "report.json").read_text())["subsurface"]
     two = np.array(ss["mfp_median_mm"])
     e1, e2 = np.abs(one - SKIN1_MFP) / SKIN1_MFP, np.abs(two - SKIN1_MFP) / SKIN1_MFP
@@ -114,7 +115,7 @@ def test_a_second_pass_removes_the_lobe_bias(sss, tmp_path):
 
 
 def _render(src, out, *extra):
-    assert main(["render", str(src), "--out", str(out), "--quiet", *extra]) == 0
+    assert main(["render", str(src), "--out", str(out), "--quiet", "--no-index", *extra]) == 0
     return read_exr(out / "relit.exr")[..., :3], json.loads((out / "settings.json").read_text())
 
 
