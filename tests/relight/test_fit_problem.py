@@ -72,8 +72,11 @@ def test_the_reference_model_is_the_solvers(ggx_sphere, key):
     obs = observations(cap, surface)
     u = jax.random.normal(key, (lay.size,), jnp.float64)
     wi, wo, irr, rad = (jnp.asarray(x[0]) for x in (obs.wi, obs.wo, obs.irradiance, obs.radiance))
-    ref = predict_radiance(u, lay, wi, wo, irr)
-    r, J, pred = residual_and_jacobian(u, rad.T, jnp.ones_like(rad.T), wi.T, wo.T, irr.T, lay, None)
+
+    # Each compiled as one program (op-by-op dispatch compiles every primitive of the model on its own).
+    ref = jax.jit(lambda u, wi, wo, irr: predict_radiance(u, lay, wi, wo, irr))(u, wi, wo, irr)
+    r, J, pred = jax.jit(lambda u, rad, wi, wo, irr: residual_and_jacobian(
+        u, rad.T, jnp.ones_like(rad.T), wi.T, wo.T, irr.T, lay, None))(u, rad, wi, wo, irr)
     assert_close(pred, np.asarray(ref).T)
     assert_close(r, (pred - rad.T).reshape(-1))
     assert J.shape == (r.shape[0], lay.size)
