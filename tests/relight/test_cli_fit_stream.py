@@ -27,6 +27,8 @@ MAPS = ("albedo", "specular", "alpha", "normal", "model")
 # and shading call keeps its shape): bit for bit.
 ATOL = {"albedo": 1e-4, "specular": 5e-5, "alpha": 1.5e-3, "normal": 0.0, "model": 0.0}
 BLOCK = 32  # 110 texels: 4 blocks
+# The fits here run with --no-index: index.html's sweep is the viewer's (tests/relight/test_view.py), not the
+# streaming's, and costs every run seconds.
 
 
 def _maps(folder):
@@ -88,7 +90,7 @@ def test_sample_subset_reads_the_loaded_texels(captures):
 def test_store_equals_folder_and_streams(captures, tmp_path):
     cap, store, ref = captures
     out = tmp_path / "o"
-    assert main(["fit", str(store), "--out", str(out), "--quiet"]) == 0
+    assert main(["fit", str(store), "--out", str(out), "--quiet", "--no-index"]) == 0
     # The same float32 radiance and mask read through another container: the same fit, bit for bit.
     _assert_maps(_maps(out), _maps(ref))
     settings = json.loads((out / "settings.json").read_text())["resolved"]
@@ -100,7 +102,7 @@ def test_store_equals_folder_and_streams(captures, tmp_path):
 def test_block_size_gives_the_same_maps(captures, tmp_path):
     cap, _, ref = captures
     out = tmp_path / "o"
-    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet"]) == 0
+    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     _assert_maps(_maps(out), _maps(ref))
     rep = _report(out)
     assert rep["parts"]["blocks"] == 4 and rep["parts"]["fitted_blocks"] == 4
@@ -115,7 +117,7 @@ class _Killed(Exception):
 def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
     cap, store, _ = captures
     whole = tmp_path / "whole"
-    assert main(["fit", str(store), "--out", str(whole), "--block", str(BLOCK), "--quiet"]) == 0
+    assert main(["fit", str(store), "--out", str(whole), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     # A run killed after its second block: what `relight fit --block 32` would have left in OUT/.parts.
     out = tmp_path / "o"
     c, surface, _, _ = open_texel_capture(store)
@@ -130,12 +132,12 @@ def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
         fit_resumable(c, surface, out / ".parts", solver="lm",
                       options=FitOptions(block=BLOCK, on_block=stop_after_two))
     assert len(list((out / ".parts").glob("part_*.npz"))) == 2
-    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet"]) == 0
+    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["blocks"], rep["resumed_blocks"], rep["fitted_blocks"]) == (4, 2, 2)
     _assert_maps(_maps(out), _maps(whole))  # resumed = uninterrupted, bit for bit (same block, same shapes)
     # Finished: a second --resume fits nothing and writes the same maps.
-    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet"]) == 0
+    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["resumed_blocks"], rep["fitted_blocks"]) == (4, 0)
     _assert_maps(_maps(out), _maps(whole))
@@ -144,16 +146,16 @@ def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
 def test_resume_refuses_a_changed_setting_and_a_fresh_run_restarts(captures, tmp_path, capsys):
     cap, _, _ = captures
     out = tmp_path / "o"
-    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet"]) == 0
+    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     before = _maps(out)
     capsys.readouterr()
     for changed in (["--block", "16"], ["--block", str(BLOCK), "--model", "lambert"]):
-        assert main(["fit", str(cap), "--out", str(out), "--resume", "--quiet", *changed]) == 1
+        assert main(["fit", str(cap), "--out", str(out), "--resume", "--quiet", "--no-index", *changed]) == 1
         err = capsys.readouterr().err
         assert "--resume" in err and "another fit" in err and "without --resume" in err, err
         _assert_maps(_maps(out), before)  # the refused run wrote nothing
     # Without --resume the parts are cleared and every block is fitted under the new setting.
-    assert main(["fit", str(cap), "--out", str(out), "--block", "16", "--quiet"]) == 0
+    assert main(["fit", str(cap), "--out", str(out), "--block", "16", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["blocks"], rep["resumed_blocks"], rep["fitted_blocks"]) == (7, 0, 7)
     assert len(list((out / ".parts").glob("part_*.npz"))) == 7
@@ -235,7 +237,7 @@ def two_devices(captures, tmp_path_factory):
     subprocess's counts)."""
     cap, _, _ = captures
     root = tmp_path_factory.mktemp("devices")
-    fit = ["fit", str(cap), "--quiet"]
+    fit = ["fit", str(cap), "--quiet", "--no-index"]  # no index.html: its sweep is not what these runs test
     runs = [({}, [*fit, "--devices", "1", "--out", str(root / "d1")]),
             ({"RELIGHT_CACHE_DIR": str(root / "named")}, ["--cache-dir", "off", *fit, "--devices", "2",
                                                           "--out", str(root / "d2")])]
@@ -253,7 +255,9 @@ def test_two_devices_equal_one(two_devices):
 
 def test_compile_cache_is_written_then_hit(captures, tmp_path):
     cap, _, _ = captures
-    argv = ["fit", str(cap), "--out", str(tmp_path / "o"), "--model", "lambert", "--quiet"]
+    # --no-index: the fit's own programs only (index.html's sweep, at the commands' full size in a fresh
+    # process, would add render programs and seconds, and is not what the cache is tested with).
+    argv = ["fit", str(cap), "--out", str(tmp_path / "o"), "--model", "lambert", "--quiet", "--no-index"]
     xdg = tmp_path / "xdg"
     # Default location: $XDG_CACHE_HOME/relight/jax (RELIGHT_CACHE_DIR unset).
     first = _counted(argv, {"XDG_CACHE_HOME": str(xdg)})
