@@ -28,11 +28,9 @@ FIELDS = ("rho_d", "rho_s", "alpha", "normal", "tangent", "model", "residual", "
 
 @pytest.fixture(scope="module")
 def scene():
-    return _scene()
-
-
-@pytest.fixture(scope="module")
-def small_scene():
+    """The 16 x 16 texel sphere (~80 texels; the subprocess's, and test_fit_parts' and test_fit_problem's, so
+    one build per process): more samples than a block, the chunk (16) and the spans below, which is all that
+    these tests need of its size."""
     return _scene(res=16)
 
 
@@ -67,10 +65,10 @@ def test_one_block_whatever_its_size(scene):
                      fit(cap, surface, model="ggx", options=_fast(block=P)), rtol=0.0)
 
 
-def test_blocks_give_the_same_auto_fit(small_scene):
+def test_blocks_give_the_same_auto_fit(scene):
     """The ladder per block (held-out trials, choice, refits, straggler rounds) equals one block of every sample:
     each sample's fit depends on its own observations only."""
-    cap, surface = small_scene
+    cap, surface = scene
     P = surface.num_samples
     events, blocks = [], []
     whole = fit(cap, surface, model="auto", options=_fast(block=P))
