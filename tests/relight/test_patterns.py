@@ -62,7 +62,7 @@ def test_encoder_equals_capture_patterns(camera):
     lumi = simulate(jax.random.PRNGKey(1), rig, camera.center, 48, rp.ParameterRanges(occlusion=0.5))
     # The trained fixture's model shapes (its random initialisation compiles once for both).
     model = rp.PatternAutoencoder(jax.random.PRNGKey(2), 32, rig.num_lights, width=64, depth=2, grid=GRID2)
-    y = np.asarray(model.measure(lumi.radiance))  # [N, K, C]
+    y = np.asarray(eqx.filter_jit(lambda m, r: m.measure(r))(model, lumi.radiance))  # [N, K, C]
     pc = stage.capture_patterns(rp.as_capture(lumi, rig, camera), model.patterns)
     ref = np.transpose(np.asarray(pc.radiance[0]), (1, 0, 2))
     assert y.shape == ref.shape == (48, 32, 3)
@@ -168,7 +168,8 @@ def test_no_nan_gradients_at_edges(dome):
     and grazing normals."""
     pos, normal, wo, rho_d, rho_s, alpha = _edge_lumitexels(dome)
     t, b = brdf.orthonormal_basis(normal)
-    rad, white, lit = rp.lumitexels(dome, pos, normal, t, b, wo, rho_d, rho_s, alpha)
+    # One compiled program instead of hundreds of eagerly dispatched operations.
+    rad, white, lit = eqx.filter_jit(rp.lumitexels)(dome, pos, normal, t, b, wo, rho_d, rho_s, alpha)
     lumi = rp.Lumitexels(radiance=rad, white=white, visible=lit, rho_d=rho_d, rho_s=rho_s, alpha=alpha,
                          position=pos, normal=normal, tangent=t, bitangent=b, wo=wo)
     model = rp.PatternAutoencoder(jax.random.PRNGKey(0), 8, dome.num_lights, width=16, depth=2, grid=GRID2)
