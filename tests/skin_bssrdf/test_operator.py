@@ -6,9 +6,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import brdf
 import skin_bssrdf as sb
 from tests.helpers import REFUSED, assert_close, assert_finite
 from tests.scenes import texel_grid
+
+
+def _fast_jit(fun, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: these programs run once, so compile time is what the test pays
+    (eager, DiffusionOperator.apply compiles its chunk loop and every op around it on their own)."""
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
+
+
+_apply = _fast_jit(lambda ops, profile, E, normalize=False: ops.apply(profile, E, normalize=normalize),
+                   static_argnames="normalize")
 
 # A short-range material (r99 ~ 2.4 mm) keeps the neighbour lists small.
 PROFILE = sb.Dipole(jnp.array([0.5, 0.9]), jnp.array([2.0, 2.5]), 1.3)
@@ -38,12 +49,12 @@ def test_energy_conservation_and_reported_tail(grid):
     assert frac.min() < 0.01
     # raw weights: uniform irradiance in, (total - tail) x it out, up to the quadrature error of
     # the sum at spacing 0.2 mm (1.4 % for this profile, whose peak width 1/sigma_t' is 0.3-0.4 mm)
-    M = ops.apply(PROFILE, E)
+    M = _apply(ops, PROFILE, E)
     inner = _interior(pos, RADIUS)
     assert inner.sum() > 0
     assert_close(M[inner], jnp.broadcast_to(2 * kept, M[inner].shape), rtol=0.02, atol=0)
     # normalised: exact everywhere, the open border included
-    Mn = ops.apply(PROFILE, E, normalize=True)
+    Mn = _apply(ops, PROFILE, E, normalize=True)
     assert_close(Mn, jnp.broadcast_to(2 * kept, Mn.shape), rtol=1e-12)
     # captured = row sums: smaller at the border (neighbours missing), which normalisation restores
     cap = np.asarray(ops.captured(PROFILE))
@@ -79,7 +90,7 @@ def test_converges_as_spacing_shrinks(profile, bound):
         pos, area, _ = texel_grid(n, h)
         c = (n // 2) * n + n // 2
         ops = sb.DiffusionOperator.build(pos, area, radius, receivers=np.array([c]))
-        M = np.asarray(ops.apply(profile, jnp.ones((pos.shape[0], 2))))
+        M = np.asarray(_apply(ops, profile, jnp.ones((pos.shape[0], 2))))
         assert M.shape == (1, 2)
         errs.append(np.max(np.abs(M[0] - exact) / exact))
     assert errs[2] < errs[1] < errs[0], errs
@@ -91,15 +102,17 @@ def test_gradient_wrt_profile_matches_finite_differences():
     ops = sb.DiffusionOperator.build(pos, area, 1.5, chunk=37)
     E = jnp.asarray(np.random.default_rng(0).uniform(0.5, 2.0, (pos.shape[0], 2)))
 
-    @jax.jit
     def f(x):
         p = sb.Dipole(x[:2], x[2:4], x[4])
         return jnp.sum(ops.apply(p, E) * jnp.arange(pos.shape[0], dtype=E.dtype)[:, None])
 
     x = jnp.array([0.5, 0.9, 2.0, 2.5, 1.3])
-    g = jax.grad(f)(x)
     h = 1e-6
-    fd = jnp.array([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in jnp.eye(5)])
+    steps = h * jnp.eye(5)
+    # one program: the gradient at x and f at the 10 shifted points (compiled once, not per transformation)
+    g, up, down = _fast_jit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
+                                          jax.lax.map(f, x[None] - s)))(x, steps)
+    fd = (up - down) / (2 * h)
     assert_close(g, fd, rtol=1e-6, atol=1e-8)  # central differences, float64
 
 
@@ -107,19 +120,26 @@ def test_chunking_and_per_sample_profiles_agree(grid):
     pos, area, ops = grid
     P = pos.shape[0]
     E = jnp.asarray(np.random.default_rng(1).uniform(0, 1, (P, 2)))
-    ref = ops.apply(PROFILE, E)
     small = sb.DiffusionOperator.build(pos, area, RADIUS, chunk=97)  # P is not a multiple of 97
-    assert_close(small.apply(PROFILE, E), ref, rtol=1e-12)
     per = sb.Dipole(jnp.tile(PROFILE.sigma_a, (P, 1)), jnp.tile(PROFILE.sigma_s_prime, (P, 1)), 1.3)
-    assert_close(ops.apply(per, E), ref, rtol=1e-12)
     # a texture of parameters: each receiving sample uses its own profile
     sa = jnp.where(jnp.arange(P)[:, None] < P // 2, 0.5, 0.8) * jnp.ones((P, 2))
-    mixed = ops.apply(sb.Dipole(sa, 2.0, 1.3), E)
-    lo = ops.apply(sb.Dipole(jnp.full(2, 0.5), 2.0, 1.3), E)
-    hi = ops.apply(sb.Dipole(jnp.full(2, 0.8), 2.0, 1.3), E)
+    profiles = (PROFILE, per, sb.Dipole(sa, 2.0, 1.3), sb.Dipole(jnp.full(2, 0.5), 2.0, 1.3),
+                sb.Dipole(jnp.full(2, 0.8), 2.0, 1.3))
+
+    # every apply in one program (eager, each compiled its chunk loop on its own)
+    @_fast_jit
+    def applied(ops, small, profiles, E):
+        one, per, mixed, lo, hi = profiles
+        return (ops.apply(one, E), small.apply(one, E), ops.apply(per, E), ops.apply(mixed, E), ops.apply(lo, E),
+                ops.apply(hi, E), ops.apply(per, E, normalize=True))
+
+    ref, chunked, per_sample, mixed, lo, hi, normalized = applied(ops, small, profiles, E)
+    assert_close(chunked, ref, rtol=1e-12)
+    assert_close(per_sample, ref, rtol=1e-12)
     assert_close(mixed[: P // 2], lo[: P // 2], rtol=1e-12)
     assert_close(mixed[P // 2 :], hi[P // 2 :], rtol=1e-12)
-    assert_finite(jax.jit(lambda o, p, e: o.apply(p, e, normalize=True))(ops, per, E))
+    assert_finite(normalized)
 
 
 def test_max_neighbours_keeps_the_nearest(grid):
@@ -167,7 +187,7 @@ def test_no_seam_on_uv_seamed_head(shared_data):
     prof = sb.SumOfGaussians(jnp.full((3, 1), 0.3), jnp.array([4.0, 16.0, 64.0]))
     E = jnp.asarray(1 + 0.5 * np.sin(2 * np.pi * pos[:, :1] / 40.0))
     radius = sb.operator_radius(prof)
-    M = np.asarray(sb.DiffusionOperator.build(pos, area, radius).apply(prof, E, normalize=True))[:, 0]
+    M = np.asarray(_apply(sb.DiffusionOperator.build(pos, area, radius), prof, E, normalize=True))[:, 0]
     T = np.asarray(sb.TextureSpaceDiffusion.build(ti, surf.resolution, pos).apply(prof, E))[:, 0]
     # neighbours in 3-D (within one texel spacing) far apart in the texture: across a UV seam
     from scipy.spatial import cKDTree
