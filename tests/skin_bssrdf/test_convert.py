@@ -5,11 +5,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import brdf
 import skin_bssrdf as sb
 from tests.helpers import assert_close, assert_finite
 
 MODELS = ["dipole", "better_dipole"]
 RD = jnp.array([0.0, 0.01, 0.2, 0.5, 0.8, 0.95, 0.999])
+
+
+def _fast_jit(fun, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
+    the conversions' own jits compile with XLA's default options, and every op around them on its own)."""
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -24,15 +31,21 @@ def test_inversion_round_trip(model):
 def test_coefficients_round_trip(model, kind):
     rd = RD[1:]
     mfp = jnp.linspace(0.5, 4.0, rd.shape[0])
-    sa, ss = sb.coefficients_from_albedo(rd, mfp, 1.3, model, kind)
-    rd2, mfp2 = sb.albedo_from_coefficients(sa, ss, 1.3, model, kind)
+
+    @_fast_jit  # the round trip and the profile in one program
+    def trip(rd, mfp):
+        sa, ss = sb.coefficients_from_albedo(rd, mfp, 1.3, model, kind)
+        rd2, mfp2 = sb.albedo_from_coefficients(sa, ss, 1.3, model, kind)
+        # and the profile built from them has that total and that width
+        P = (sb.Dipole if model == "dipole" else sb.BetterDipole)(sa, ss, 1.3)
+        return rd2, mfp2, P.total(), 1 / P.sigma_tr
+
+    rd2, mfp2, total, width = trip(rd, mfp)
     assert_close(rd2, rd, atol=1e-12)
     assert_close(mfp2, mfp, rtol=1e-10)
-    # and the profile built from them has that total and that width
-    P = (sb.Dipole if model == "dipole" else sb.BetterDipole)(sa, ss, 1.3)
-    assert_close(P.total(), rd, atol=1e-12)
+    assert_close(total, rd, atol=1e-12)
     if kind == "diffuse":
-        assert_close(1 / P.sigma_tr, mfp, rtol=1e-10)
+        assert_close(width, mfp, rtol=1e-10)
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -42,23 +55,25 @@ def test_gradients_finite_at_albedo_0_and_1(model):
         st, tt = sb.coefficients_from_albedo(rd, 2.0, 1.3, model, "transport")
         return jnp.sum(sa + 2 * ss + st + 3 * tt) + jnp.sum(sb.reduced_albedo_from_total(rd, 1.3, model))
 
-    g = jax.jit(jax.grad(f))(jnp.array([0.0, 1.0]))
+    vals, g = _fast_jit(jax.value_and_grad(f))(jnp.array([0.0, 1.0]))
     assert_finite(g)
-    vals = jax.jit(f)(jnp.array([0.0, 1.0]))
     assert np.isfinite(float(vals))
 
 
 @pytest.mark.parametrize("model", MODELS)
 def test_gradient_matches_finite_differences(model):
-    @jax.jit
     def f(x):
         sa, ss = sb.coefficients_from_albedo(x[0], x[1], x[2], model)
         return jnp.sum(sa * 3 + ss)
 
     x = jnp.array([0.45, 1.7, 1.35])
     h = 1e-6
-    fd = jnp.array([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in jnp.eye(3)])
-    assert_close(jax.grad(f)(x), fd, rtol=1e-6, atol=1e-8)
+    steps = h * jnp.eye(3)
+    # one program: the gradient at x and f at the 6 shifted points
+    g, up, down = _fast_jit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
+                                          jax.lax.map(f, x[None] - s)))(x, steps)
+    fd = (up - down) / (2 * h)
+    assert_close(g, fd, rtol=1e-6, atol=1e-8)
 
 
 def test_float32_stable():
