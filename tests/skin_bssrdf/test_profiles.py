@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import brdf
 import skin_bssrdf as sb
 from tests.helpers import assert_close, assert_finite
 from tests.skin_bssrdf.quadrature import integrate_disc
@@ -35,13 +36,20 @@ def make(name, albedo):
 PROFILES = ["dipole", "better_dipole", "burley", "gaussians", "multipole"]
 
 
+def _fast_jit(fun, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
+    every op of a profile's formulas is compiled on its own)."""
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
+
+
 @pytest.mark.parametrize("name", PROFILES)
 def test_total_equals_quadrature(name):
     # quadrature of 2 pi r R_d(r) equals total() to 1e-4 absolute (total() is a reflectance), for a range of albedos
     p = make(name, ALBEDOS)
-    assert_close(integrate_disc(p, r_max=1e3), p.total(), rtol=0, atol=1e-4)
+    quad, total, cumulative = _fast_jit(lambda p: (integrate_disc(p, r_max=1e3), p.total(), p.cumulative(1e3)))(p)
+    assert_close(quad, total, rtol=0, atol=1e-4)
     # and the closed-form cumulative energy agrees with the quadrature to a finite radius
-    assert_close(p.cumulative(1e3), p.total(), rtol=0, atol=1e-4)
+    assert_close(cumulative, total, rtol=0, atol=1e-4)
 
 
 @pytest.mark.parametrize("name", PROFILES)
@@ -57,19 +65,19 @@ def test_falls_monotonically_and_non_negative(name):
 
 @pytest.mark.parametrize("name", PROFILES)
 def test_gradients_finite_at_edges_and_match_finite_differences(name):
-    @jax.jit
     def f(a, r):
         p = make(name, a)
         return jnp.sum(p.radial(r + jnp.array([0.0, 0.05, 0.5, 2.0]))) + jnp.sum(p.total())
 
-    g = jax.jit(jax.grad(f, argnums=(0, 1)))
+    fg = _fast_jit(jax.value_and_grad(f, argnums=(0, 1)))  # f and its gradient: one program
+    r0 = jnp.array(0.0)
     # finite at r = 0 and at albedo 0 and 1
     for a in (0.0, 1.0):
-        assert_finite(f(jnp.array(a), jnp.array(0.0)), g(jnp.array(a), jnp.array(0.0)))
+        assert_finite(*fg(jnp.array(a), r0))
     # float64 central differences (h = 1e-6: O(h^2) truncation + rounding/h ~ 1e-10)
     a, h = jnp.array(0.7), 1e-6
-    fd = (f(a + h, 0.0) - f(a - h, 0.0)) / (2 * h)
-    assert_close(g(a, jnp.array(0.0))[0], fd, rtol=1e-6, atol=1e-8)
+    fd = (fg(a + h, r0)[0] - fg(a - h, r0)[0]) / (2 * h)
+    assert_close(fg(a, r0)[1][0], fd, rtol=1e-6, atol=1e-8)
 
 
 @pytest.mark.parametrize("name", PROFILES)
