@@ -1,16 +1,24 @@
 """Texture-space sum-of-Gaussians diffusion: the blur against kornia (an independent
 implementation), energy conservation with holes, agreement with the 3-D operator on a plane."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import brdf
 import skin_bssrdf as sb
 from tests.helpers import REFUSED, assert_close
 from tests.scenes import texel_grid
 
 torch = pytest.importorskip("torch")
 kornia = pytest.importorskip("kornia")
+
+
+def _fast_jit(fun, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
+    every op of the blurs and of the operator's chunk loop is compiled on its own)."""
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
 def _kornia_blur(img, sigma):
@@ -70,13 +78,18 @@ def test_agrees_with_sparse_operator_on_a_plane():
     prof = sb.SumOfGaussians.skin_deon2007(jnp.array([0.6, 0.4, 0.3]))
     E = jnp.asarray(np.where(pos[:, :1] > 7.9, 1.0, 0.05) * np.ones((1, 3)))  # a shadow edge
     tsd = sb.TextureSpaceDiffusion.build(tex, (H, W), pos)
-    T = np.asarray(tsd.apply(prof, E))
     radius = sb.operator_radius(prof)
     inner = np.all((pos[:, :2] > radius) & (pos[:, :2] < h * (H - 1) - radius), axis=1)
     inner &= np.arange(H * W) % 3 == 0  # a third of the interior as receivers is plenty
     ops = sb.DiffusionOperator.build(pos, area, radius, receivers=np.flatnonzero(inner))
+
+    @_fast_jit  # both convolutions in one program (the profile closed over: the blurs need its variances)
+    def both(tsd, ops, E):
+        return tsd.apply(prof, E), ops.apply(prof, E, normalize=True), prof.total() / (prof.total() - ops.tail(prof))
+
+    T, M, rescale = (np.asarray(x) for x in both(tsd, ops, E))
     # the texture blurs keep the whole energy: compare with the kernel rescaled from total - tail to total
-    M = np.asarray(ops.apply(prof, E, normalize=True)) * np.asarray(prof.total() / (prof.total() - ops.tail(prof)))
+    M = M * rescale
     # 2 % of the brightest exitance (measured 1.7 %, at the shadow edge): at 0.2 mm spacing the
     # two narrowest red Gaussians (sigma 0.08 and 0.22 mm) are at or below a texel, where the
     # point-sampled kernel and the sampled blur discretise them differently
