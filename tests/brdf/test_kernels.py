@@ -293,10 +293,8 @@ def test_phong_exponent_round_trip():
 def _fd(f, args):
     # Central differences in float64 against forward and reverse mode (kornia's gradcheck,
     # optimistix's JVP tests). eps = 1e-6: truncation ~ eps^2 f''' and rounding ~ 1e-16/eps,
-    # so 1e-6 relative holds for these smooth, O(1) functions. f is jitted (default options: check_grads nests
-    # it in its own transformations, where compiler options are refused): check_grads evaluates it, its JVP
-    # and its VJP a dozen times, and eager each of those compiled every op of f anew (seconds per kernel).
-    check_grads(jax.jit(f), args, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-6, rtol=1e-6)
+    # so 1e-6 relative holds for these smooth, O(1) functions.
+    check_grads(f, args, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
 @pytest.mark.parametrize("family", FAMILIES)
