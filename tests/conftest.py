@@ -19,6 +19,8 @@ import tests.helpers  # the --jaxtyping-packages checker (tests.helpers.typechec
 # fresh temporary folder (never the user's ~/.cache/relight/jax; tests of the cache set their own): the suite
 # compiles many identical programs (the same fit, simulate and render shapes from different tests), and XLA's CPU
 # compile is most of its time. A cache hit returns the executable XLA would have built; nothing else changes.
+# XLA's CPU flags of the run (tests.helpers.TEST_XLA_FLAGS: faster compiles), set before JAX starts its backend.
+os.environ["XLA_FLAGS"] = " ".join(x for x in (os.environ.get("XLA_FLAGS", ""), tests.helpers.TEST_XLA_FLAGS) if x)
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
 TEST_CACHE_DIR = Path(tempfile.gettempdir()) / f"relight-test-jax-cache-{_RUN}"
 os.environ.setdefault("RELIGHT_CACHE_DIR", str(TEST_CACHE_DIR))

@@ -22,6 +22,20 @@ typechecker = beartype.beartype(
     conf=beartype.BeartypeConf(strategy=beartype.BeartypeStrategy.On, is_pep484_tower=True)
 )
 
+# XLA's CPU fusion emitters off for the test run (tests/conftest.py sets it, and every fresh process a test starts
+# gets it through xla_flags): the suite compiles hundreds of programs that each run a few times, and with the
+# emitters XLA's CPU compile takes about twice as long (the README walk's fit: 25-28 s of compile against 11-14 s,
+# the same run time; test_fit.py + test_fit_sss.py: 121 s of CPU against 95 s). The arithmetic stays IEEE (no
+# fast-math); only the code XLA emits for fused loops differs. Users' runs keep XLA's defaults.
+TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false"
+
+
+def xla_flags(*extra: str) -> str:
+    """The XLA_FLAGS of a fresh process a test starts: the run's TEST_XLA_FLAGS plus ``extra`` (e.g. a forced host
+    device count)."""
+    return " ".join((TEST_XLA_FLAGS, *extra))
+
+
 TOL = {
     jnp.float64: dict(rtol=1e-10, atol=1e-12),
     jnp.float32: dict(rtol=1e-5, atol=1e-6),

@@ -15,6 +15,7 @@ import pytest
 from relight.cli import main
 from relight.fitting import FitOptions, fit_resumable
 from relight.io import SampleSubset, load_texel_capture, open_capture_store, open_texel_capture, read_maps
+from tests.helpers import xla_flags
 
 from ._cli_runs import head16, small_index
 
@@ -182,9 +183,9 @@ def test_bad_block_and_devices_flags(captures, tmp_path, capsys):
 
 
 def _python(code, env_extra, timeout=300):
-    """Run ``code`` in a fresh Python (this environment without XLA_FLAGS / RELIGHT_CACHE_DIR, plus
-    ``env_extra``); its last stdout line parsed as JSON."""
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "RELIGHT_CACHE_DIR")}
+    """Run ``code`` in a fresh Python (this environment without RELIGHT_CACHE_DIR, the test run's XLA_FLAGS
+    (tests.helpers.xla_flags), plus ``env_extra``); its last stdout line parsed as JSON."""
+    env = {k: v for k, v in os.environ.items() if k != "RELIGHT_CACHE_DIR"} | {"XLA_FLAGS": xla_flags()}
     env.update(PYTHONPATH=str(ROOT), **env_extra)
     r = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, capture_output=True, text=True,
                        timeout=timeout, cwd=ROOT)
@@ -241,8 +242,8 @@ def two_devices(captures, tmp_path_factory):
     runs = [({}, [*fit, "--devices", "1", "--out", str(root / "d1")]),
             ({"RELIGHT_CACHE_DIR": str(root / "named")}, ["--cache-dir", "off", *fit, "--devices", "2",
                                                           "--out", str(root / "d2")])]
-    got = _counted_runs(runs, {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "RELIGHT_CACHE_DIR": "off",
-                               "XDG_CACHE_HOME": str(root / "xdg")})
+    got = _counted_runs(runs, {"XLA_FLAGS": xla_flags("--xla_force_host_platform_device_count=2"),
+                               "RELIGHT_CACHE_DIR": "off", "XDG_CACHE_HOME": str(root / "xdg")})
     return root, got
 
 

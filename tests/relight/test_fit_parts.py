@@ -18,6 +18,7 @@ import pytest
 import stage
 from relight import fit
 from relight.fitting import FitOptions, PartsFingerprintError, PartsIncompleteError, fit_parts, merge_parts
+from tests.helpers import xla_flags
 
 from ..scenes import noisy_ggx_sphere
 
@@ -200,8 +201,7 @@ def test_two_processes_share_the_blocks(scene, reference, tmp_path):
     cap, surface = scene
     P = surface.num_samples
     port = _free_port()
-    env = dict(os.environ, JAX_PLATFORMS="cpu", **_cache_env())
-    env.pop("XLA_FLAGS", None)
+    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=xla_flags(), **_cache_env())
     procs = [subprocess.Popen([sys.executable, "-c", _WORKER.format(root=str(ROOT), port=port, pid=i,
                                                                     folder=str(tmp_path))],
                               env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

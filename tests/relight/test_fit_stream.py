@@ -16,6 +16,7 @@ import pytest
 import stage
 from relight import fit
 from relight.fitting import FitOptions
+from tests.helpers import xla_flags
 
 from ..scenes import noisy_ggx_sphere as _scene  # (capture, surface); also imported by the subprocess below
 from .test_fit_parts import _cache_env
@@ -207,7 +208,8 @@ def test_four_devices_shard_the_solve_and_agree():
     1-device fit (rtol 1e-5; measured 1e-13). In float64, as the suite runs: in float32 a different per-device
     batch changes a few LM stopping decisions, so fits differ at the solver's tolerance (up to ~1e-3 with this
     test's 6-step rounds), exactly as a different ``chunk`` on one device does; one shape is bit-reproducible."""
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu", **_cache_env())
+    env = dict(os.environ, XLA_FLAGS=xla_flags("--xla_force_host_platform_device_count=4"), JAX_PLATFORMS="cpu",
+               **_cache_env())
     run = subprocess.run([sys.executable, "-c", _SHARDED.format(root=str(ROOT))], env=env, cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -32,6 +32,7 @@ import pytest
 from relight.io import ImageFormatError, open_capture, read_exr, read_maps
 from relight.results import ResultSetError, open_result_set
 from relight.results._resultset import _set_files
+from tests.helpers import xla_flags
 
 # `relight ARGS...` with the test hooks injected: argv = [kill point or "", "1" for the two-rename swap, ARGS...].
 _WRAPPER = """
@@ -59,8 +60,7 @@ RUN_TIMEOUT_S = 180
 def env():
     # The run's RELIGHT_CACHE_DIR (tests/conftest.py) is kept: the subprocesses read what the in-process runs
     # compiled.
-    keep = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    return keep | {"JAX_PLATFORMS": "cpu"}
+    return os.environ | {"XLA_FLAGS": xla_flags(), "JAX_PLATFORMS": "cpu"}
 
 
 def _run(env, args, kill_at=None, no_exchange=False):

@@ -48,12 +48,12 @@ from relight.results import (
     writing,
 )
 from relight.results import _resultset as rsm
+from tests.helpers import xla_flags
 
 from ._cli_runs import small_index
 
 RES = 8
-ENV = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"RELIGHT_CACHE_DIR": "off",
-                                                                   "JAX_PLATFORMS": "cpu"}
+ENV = os.environ | {"XLA_FLAGS": xla_flags(), "RELIGHT_CACHE_DIR": "off", "JAX_PLATFORMS": "cpu"}
 
 
 @pytest.fixture(scope="module")
