@@ -2,6 +2,7 @@
 test and carries a comment saying why."""
 
 import contextlib
+import functools
 import importlib.util
 import os
 import sys
@@ -100,3 +101,14 @@ def locked(path: Path):
     with open(path, "w") as f:
         fcntl.flock(f, fcntl.LOCK_EX)
         yield  # closing the file releases the lock
+
+
+def fjit(fun=None, **kw):
+    """jax.jit with brdf.check.FAST_COMPILE: the test programs that run once or a few times on small arrays,
+    where compile time is what the suite pays for (eager, every op compiles on its own). The arithmetic stays
+    IEEE (no fast-math). Usable as ``@fjit`` or ``@fjit(static_argnames=...)``."""
+    import brdf  # here, not at the top: this module (its typechecker) loads before the instrumented packages
+
+    if fun is None:
+        return functools.partial(fjit, **kw)
+    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)

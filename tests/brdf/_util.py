@@ -1,12 +1,11 @@
-"""Direction helpers shared by the brdf tests, and a cheaply compiled jit."""
-
-import functools
+"""Direction helpers shared by the brdf tests, and the jitted evaluators (tests.helpers.fjit)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import brdf
+from tests.helpers import fjit
 
 
 def sph(theta, phi, dtype=jnp.float64):
@@ -42,15 +41,6 @@ def edge_directions(dtype=jnp.float64):
     below = jnp.asarray([[0.6, 0.0, -0.8], [0.0, 0.0, -1.0]], dtype)
     up = jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], dtype)
     return jnp.concatenate([wi, below, up]), jnp.concatenate([wo, up, below])
-
-
-
-def fjit(fun=None, **kw):
-    """jax.jit with brdf.check.FAST_COMPILE: the test programs run once on small
-    arrays, so compile time is what the suite pays for."""
-    if fun is None:
-        return functools.partial(fjit, **kw)
-    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
 @fjit

@@ -5,18 +5,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import skin_bssrdf as sb
-from tests.helpers import assert_close, assert_finite
+from tests.helpers import assert_close, assert_finite, fjit
 
 MODELS = ["dipole", "better_dipole"]
 RD = jnp.array([0.0, 0.01, 0.2, 0.5, 0.8, 0.95, 0.999])
 
-
-def _fast_jit(fun, **kw):
-    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
-    the conversions' own jits compile with XLA's default options, and every op around them on its own)."""
-    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -32,7 +26,7 @@ def test_coefficients_round_trip(model, kind):
     rd = RD[1:]
     mfp = jnp.linspace(0.5, 4.0, rd.shape[0])
 
-    @_fast_jit  # the round trip and the profile in one program
+    @fjit  # the round trip and the profile in one program
     def trip(rd, mfp):
         sa, ss = sb.coefficients_from_albedo(rd, mfp, 1.3, model, kind)
         rd2, mfp2 = sb.albedo_from_coefficients(sa, ss, 1.3, model, kind)
@@ -55,7 +49,7 @@ def test_gradients_finite_at_albedo_0_and_1(model):
         st, tt = sb.coefficients_from_albedo(rd, 2.0, 1.3, model, "transport")
         return jnp.sum(sa + 2 * ss + st + 3 * tt) + jnp.sum(sb.reduced_albedo_from_total(rd, 1.3, model))
 
-    vals, g = _fast_jit(jax.value_and_grad(f))(jnp.array([0.0, 1.0]))
+    vals, g = fjit(jax.value_and_grad(f))(jnp.array([0.0, 1.0]))
     assert_finite(g)
     assert np.isfinite(float(vals))
 
@@ -70,7 +64,7 @@ def test_gradient_matches_finite_differences(model):
     h = 1e-6
     steps = h * jnp.eye(3)
     # one program: the gradient at x and f at the 6 shifted points
-    g, up, down = _fast_jit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
+    g, up, down = fjit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
                                           jax.lax.map(f, x[None] - s)))(x, steps)
     fd = (up - down) / (2 * h)
     assert_close(g, fd, rtol=1e-6, atol=1e-8)

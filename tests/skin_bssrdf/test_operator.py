@@ -6,20 +6,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import skin_bssrdf as sb
-from tests.helpers import REFUSED, assert_close, assert_finite
+from tests.helpers import REFUSED, assert_close, assert_finite, fjit
 from tests.scenes import texel_grid
 
-
-def _fast_jit(fun, **kw):
-    """jax.jit with brdf.check.FAST_COMPILE: these programs run once, so compile time is what the test pays
-    (eager, DiffusionOperator.apply compiles its chunk loop and every op around it on their own)."""
-    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
-
-
-_apply = _fast_jit(lambda ops, profile, E, normalize=False: ops.apply(profile, E, normalize=normalize),
-                   static_argnames="normalize")
+_apply = fjit(lambda ops, profile, E, normalize=False: ops.apply(profile, E, normalize=normalize),
+              static_argnames="normalize")
 
 # A short-range material (r99 ~ 2.4 mm) keeps the neighbour lists small.
 PROFILE = sb.Dipole(jnp.array([0.5, 0.9]), jnp.array([2.0, 2.5]), 1.3)
@@ -110,7 +102,7 @@ def test_gradient_wrt_profile_matches_finite_differences():
     h = 1e-6
     steps = h * jnp.eye(5)
     # one program: the gradient at x and f at the 10 shifted points (compiled once, not per transformation)
-    g, up, down = _fast_jit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
+    g, up, down = fjit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
                                           jax.lax.map(f, x[None] - s)))(x, steps)
     fd = (up - down) / (2 * h)
     assert_close(g, fd, rtol=1e-6, atol=1e-8)  # central differences, float64
@@ -128,7 +120,7 @@ def test_chunking_and_per_sample_profiles_agree(grid):
                 sb.Dipole(jnp.full(2, 0.8), 2.0, 1.3))
 
     # every apply in one program (eager, each compiled its chunk loop on its own)
-    @_fast_jit
+    @fjit
     def applied(ops, small, profiles, E):
         one, per, mixed, lo, hi = profiles
         return (ops.apply(one, E), small.apply(one, E), ops.apply(per, E), ops.apply(mixed, E), ops.apply(lo, E),

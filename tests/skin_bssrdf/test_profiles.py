@@ -6,9 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import skin_bssrdf as sb
-from tests.helpers import assert_close, assert_finite
+from tests.helpers import assert_close, assert_finite, fjit
 from tests.skin_bssrdf.quadrature import integrate_disc
 
 ALBEDOS = jnp.array([0.0, 0.1, 0.5, 0.9, 0.99])  # reduced albedo alpha' (0 and ~1 are the edges)
@@ -36,17 +35,12 @@ def make(name, albedo):
 PROFILES = ["dipole", "better_dipole", "burley", "gaussians", "multipole"]
 
 
-def _fast_jit(fun, **kw):
-    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
-    every op of a profile's formulas is compiled on its own)."""
-    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
-
 
 @pytest.mark.parametrize("name", PROFILES)
 def test_total_equals_quadrature(name):
     # quadrature of 2 pi r R_d(r) equals total() to 1e-4 absolute (total() is a reflectance), for a range of albedos
     p = make(name, ALBEDOS)
-    quad, total, cumulative = _fast_jit(lambda p: (integrate_disc(p, r_max=1e3), p.total(), p.cumulative(1e3)))(p)
+    quad, total, cumulative = fjit(lambda p: (integrate_disc(p, r_max=1e3), p.total(), p.cumulative(1e3)))(p)
     assert_close(quad, total, rtol=0, atol=1e-4)
     # and the closed-form cumulative energy agrees with the quadrature to a finite radius
     assert_close(cumulative, total, rtol=0, atol=1e-4)
@@ -69,7 +63,7 @@ def test_gradients_finite_at_edges_and_match_finite_differences(name):
         p = make(name, a)
         return jnp.sum(p.radial(r + jnp.array([0.0, 0.05, 0.5, 2.0]))) + jnp.sum(p.total())
 
-    fg = _fast_jit(jax.value_and_grad(f, argnums=(0, 1)))  # f and its gradient: one program
+    fg = fjit(jax.value_and_grad(f, argnums=(0, 1)))  # f and its gradient: one program
     r0 = jnp.array(0.0)
     # finite at r = 0 and at albedo 0 and 1
     for a in (0.0, 1.0):

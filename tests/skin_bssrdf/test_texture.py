@@ -1,24 +1,17 @@
 """Texture-space sum-of-Gaussians diffusion: the blur against kornia (an independent
 implementation), energy conservation with holes, agreement with the 3-D operator on a plane."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import brdf
 import skin_bssrdf as sb
-from tests.helpers import REFUSED, assert_close
+from tests.helpers import REFUSED, assert_close, fjit
 from tests.scenes import texel_grid
 
 torch = pytest.importorskip("torch")
 kornia = pytest.importorskip("kornia")
 
-
-def _fast_jit(fun, **kw):
-    """jax.jit with brdf.check.FAST_COMPILE: each program runs once, so compile time is what the test pays (eager,
-    every op of the blurs and of the operator's chunk loop is compiled on its own)."""
-    return jax.jit(fun, compiler_options=brdf.check.FAST_COMPILE, **kw)
 
 
 def _kornia_blur(img, sigma):
@@ -83,7 +76,7 @@ def test_agrees_with_sparse_operator_on_a_plane():
     inner &= np.arange(H * W) % 3 == 0  # a third of the interior as receivers is plenty
     ops = sb.DiffusionOperator.build(pos, area, radius, receivers=np.flatnonzero(inner))
 
-    @_fast_jit  # both convolutions in one program (the profile closed over: the blurs need its variances)
+    @fjit  # both convolutions in one program (the profile closed over: the blurs need its variances)
     def both(tsd, ops, E):
         return tsd.apply(prof, E), ops.apply(prof, E, normalize=True), prof.total() / (prof.total() - ops.tail(prof))
 
