@@ -61,7 +61,10 @@ def test_start_and_one_round_of_the_solve_are_the_fits(ggx_sphere):
     f = relight.fit(cap, surface, model="ggx", options=FitOptions(rounds=1, steps_per_round=STEPS))
     ok = ~np.asarray(f.failed)
     assert ok.mean() > 0.9
-    assert_close(np.asarray(jax.nn.sigmoid(u[:, :3]))[ok], np.asarray(f.rho_d)[ok])
+    # The same start and LM steps on the same float32 observations: the same result codes and step counts, and
+    # the albedo to float32 rounding (the last chunk is padded differently in the two, and the code XLA emits
+    # for a vmapped lane, tests.helpers.TEST_XLA_FLAGS, may round it differently: measured 1.5e-7 at most).
+    assert_close(np.asarray(jax.nn.sigmoid(u[:, :3]))[ok], np.asarray(f.rho_d)[ok], rtol=1e-6, atol=0)
     np.testing.assert_array_equal(np.asarray(result)[ok], np.asarray(f.result)[ok])
     np.testing.assert_array_equal(np.asarray(steps)[ok], np.asarray(f.steps)[ok])
 
