@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 import skin_bssrdf as sb
-from tests.helpers import assert_close, assert_finite, fjit
+from tests.helpers import assert_close, assert_finite, fjit, grad_and_central_differences
 
 MODELS = ["dipole", "better_dipole"]
 RD = jnp.array([0.0, 0.01, 0.2, 0.5, 0.8, 0.95, 0.999])
-
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -62,11 +61,7 @@ def test_gradient_matches_finite_differences(model):
 
     x = jnp.array([0.45, 1.7, 1.35])
     h = 1e-6
-    steps = h * jnp.eye(3)
-    # one program: the gradient at x and f at the 6 shifted points
-    g, up, down = fjit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
-                                          jax.lax.map(f, x[None] - s)))(x, steps)
-    fd = (up - down) / (2 * h)
+    g, fd = grad_and_central_differences(f, x, h)
     assert_close(g, fd, rtol=1e-6, atol=1e-8)
 
 

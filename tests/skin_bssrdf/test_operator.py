@@ -1,13 +1,12 @@
 """The sparse surface diffusion operator: energy, symmetry, convergence, gradients,
 chunking, per-sample profiles, and no seam on a UV-seamed mesh."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import skin_bssrdf as sb
-from tests.helpers import REFUSED, assert_close, assert_finite, fjit
+from tests.helpers import REFUSED, assert_close, assert_finite, fjit, grad_and_central_differences
 from tests.scenes import texel_grid
 
 _apply = fjit(lambda ops, profile, E, normalize=False: ops.apply(profile, E, normalize=normalize),
@@ -100,11 +99,7 @@ def test_gradient_wrt_profile_matches_finite_differences():
 
     x = jnp.array([0.5, 0.9, 2.0, 2.5, 1.3])
     h = 1e-6
-    steps = h * jnp.eye(5)
-    # one program: the gradient at x and f at the 10 shifted points (compiled once, not per transformation)
-    g, up, down = fjit(lambda x, s: (jax.grad(f)(x), jax.lax.map(f, x[None] + s),
-                                          jax.lax.map(f, x[None] - s)))(x, steps)
-    fd = (up - down) / (2 * h)
+    g, fd = grad_and_central_differences(f, x, h)
     assert_close(g, fd, rtol=1e-6, atol=1e-8)  # central differences, float64
 
 
