@@ -21,7 +21,8 @@ Fresnel with F0 = the specular albedo: the form Kang et al. 2018 fit);
 3. ``model="auto"`` (:mod:`relight.fitting._ladder`): every rung is fitted on
    the training lights and scored on held-out lights; each sample gets the
    simplest rung whose held-out error is within noise of the best, then is
-   refitted on all lights.
+   refitted on all lights; a lobe whose peak no light saw and that predicts
+   far beyond the data goes one rung down (:mod:`relight.fitting._extrapolation`).
 
 The capture is read a block of samples at a time through
 ``relight.io.CaptureSource`` (:mod:`relight.fitting._sources`) and packed into
@@ -46,6 +47,7 @@ from ..io import CaptureSource, valid_counts
 from ..materials._maps import MODELS
 from . import _model as _fit_model
 from ._devices import _chunk_size, _chunks_of, _fit_devices, _placer
+from ._extrapolation import extrapolated_highlights
 from ._ladder import _assemble, _rungs, choose_rungs, finish_block, heldout_weights
 from ._model import Layout
 from ._observations import _normalise, _obs_bucket, _observations_of
@@ -151,7 +153,9 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
         model: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx", "ggx_aniso") or
             "auto" (the ladder: every rung is fitted on all but every ``holdout``-th light, scored
             on those, and each sample keeps the simplest rung whose held-out mean squared error is
-            within two standard errors of the noise of the best; then it is refitted on every light).
+            within two standard errors of the noise of the best; then it is refitted on every light, and
+            goes one rung down while its lobe's peak lies where no light saw it and predicts more than
+            4x its brightest observation: docs/fit.md, "How", item 8).
         normals: also fit the shading normal (photometric-stereo start).
         solver: an Optimistix least-squares solver or minimiser object
             (``optx.LevenbergMarquardt(rtol, atol)``, ``optx.GaussNewton``, ``optx.Dogleg``,
@@ -286,6 +290,28 @@ def _fit_block(plan: _Plan, surface: stage.Surface, b0: int, b1: int, phases: _P
             if len(sel):
                 bar = phases(f"fit {MODELS[k]}", chosen[k] if last else None)
                 fits[k] = (sel, _fit_rung(data, w, zero, sel, lay(k), trial[k]["u"][sel], opts, bar))
+        # A rung whose highlight the lights never saw is not kept: one rung down, refitted.
+        for k in rungs[:0:-1]:
+            if k not in fits:
+                continue
+            sel, r = fits[k]
+            bad = extrapolated_highlights(r["u"], lay(k), data, sel, opts["size"])
+            if not bad.any():
+                continue
+            fits[k] = (sel[~bad], {f: v[~bad] for f, v in r.items()})
+            down = rungs[rungs.index(k) - 1]
+            moved = sel[bad]
+            choice[moved] = down
+            heldout[moved] = np.sqrt(trial[down]["hmse"][moved]).astype(dt)
+            chosen[down] += len(moved)
+            bar = phases(f"fit {MODELS[down]}", chosen[down] if last else None)
+            new = _fit_rung(data, w, zero, moved, lay(down), trial[down]["u"][moved], opts, bar)
+            if down in fits:
+                old_sel, old = fits[down]
+                new = {f: np.concatenate([old[f], new[f]]) for f in old}
+                moved = np.concatenate([old_sel, moved])
+            fits[down] = (moved, new)
+        fits = {k: v for k, v in fits.items() if len(v[0])}
     out = _assemble(fits, choice, n, plan.normals, plan.floor, dt, block_surface, opts["size"])
     return finish_block(out, plan.n_valid[b0:b1], block_surface, unit, heldout, choice, dt, MIN_OBSERVATIONS)
 

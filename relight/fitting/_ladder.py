@@ -3,7 +3,8 @@ per-sample result assembled from the rungs' solves.
 
 ``model="auto"``: every rung is fitted on all but every ``holdout``-th light and scored on those; each
 sample keeps the simplest rung whose held-out mean squared error is within two standard errors of the
-noise of the best (:func:`choose_rungs`), then is refitted on every light.
+noise of the best (:func:`choose_rungs`), then is refitted on every light; a sample whose refitted lobe is
+an extrapolated highlight (:mod:`relight.fitting._extrapolation`) goes one rung down.
 """
 
 from __future__ import annotations

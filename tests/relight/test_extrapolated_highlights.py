@@ -1,0 +1,88 @@
+"""A highlight the lights never saw (relight.fitting._extrapolation): a lobe whose peak lies between the
+lights and predicts more than any observation is flagged, and ``model="auto"`` does not keep it (on a
+real face: Extended Yale B)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from relight.fitting._extrapolation import EXTRAPOLATION_FACTOR, extrapolated_highlights
+from relight.fitting._model import Layout, pack
+from relight.materials import BLINN_PHONG, GGX, LAMBERT
+
+YALEB = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "yaleb"
+
+
+def _ring(n: int, theta_deg: float) -> np.ndarray:
+    """n light directions theta from the normal (local frame), evenly in azimuth."""
+    t, phi = np.radians(theta_deg), np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.full(n, np.cos(t))], 1)
+
+
+def _block(wi: np.ndarray, valid: np.ndarray, bright: float = 0.1):
+    """One sample seen from its normal (wo = z): observations ``bright`` in every channel, irradiance 1."""
+    N = len(wi)
+    w = np.repeat(valid[:, None], 3, 1).astype(np.float32)
+    obs = np.full((N, 3), bright, np.float32)
+    wo = np.tile([0.0, 0.0, 1.0], (N, 1))
+    irr = np.ones((N, 3), np.float32)
+    dt = np.dtype(jnp.result_type(float))  # the fit's dtype (float64 under x64)
+    return tuple(x[None].astype(dt) for x in (obs, w, wi, wo, irr))
+
+
+def _flag(model: int, f0: float, alpha: float, data) -> bool:
+    lay = Layout(model, False, 0.02)
+    p = dict(rho_d=jnp.full(3, 0.3), rho_s=jnp.full(1, f0), alpha=jnp.full(2, alpha), phi=jnp.zeros(()),
+             normal=jnp.asarray([0.0, 0.0, 1.0]))
+    u = np.asarray(pack(p, lay))[None].astype(data[0].dtype)
+    return bool(extrapolated_highlights(u, lay, data, np.arange(1), 8)[0])
+
+
+def test_a_tall_lobe_between_the_lights_is_flagged_and_a_seen_or_modest_one_is_not():
+    """Lights on a ring 40 degrees from the normal: their half vectors are 20 degrees (0.35 rad) off it. A GGX
+    lobe of alpha 0.05 reaches half maximum 0.032 rad out and peaks at F D G / 4 ~ 16 (F0 0.5, D = 1 / (pi
+    alpha^2)), 160x the brightest observation (0.1): flagged. A light at the peak, valid, unflags it; the same
+    light masked (saturated, shadowed) does not. A broad lobe (alpha 0.6) reaches the ring; a tall narrow one
+    with F0 small enough to stay under EXTRAPOLATION_FACTOR x the data is not flagged either."""
+    ring = _ring(12, 40.0)
+    assert _flag(GGX, 0.5, 0.05, _block(ring, np.ones(12, bool)))
+    assert _flag(BLINN_PHONG, 0.5, 0.05, _block(ring, np.ones(12, bool)))
+    with_peak = np.concatenate([ring, [[0.0, 0.0, 1.0]]])
+    assert not _flag(GGX, 0.5, 0.05, _block(with_peak, np.ones(13, bool)))
+    assert _flag(GGX, 0.5, 0.05, _block(with_peak, np.r_[np.ones(12, bool), False]))
+    assert not _flag(GGX, 0.5, 0.6, _block(ring, np.ones(12, bool)))
+    # Peak of F0 D / 4 at normal incidence: below EXTRAPOLATION_FACTOR x 0.1 for F0 small enough.
+    f0 = 0.5 * EXTRAPOLATION_FACTOR * 0.1 / (1 / (np.pi * 0.05**2) / 4)
+    assert not _flag(GGX, f0, 0.05, _block(ring, np.ones(12, bool)))
+    assert not _flag(LAMBERT, 0.5, 0.05, _block(ring, np.ones(12, bool)))
+
+
+@pytest.mark.skipif(not (YALEB / "yaleB22").is_dir(), reason="../shared/data/yaleb is absent")
+def test_auto_predicts_held_out_lights_of_a_real_face_better_than_lambert():
+    """Extended Yale B, subject 22 (the suite's worst), every 8th face pixel (467), every fourth strobe held
+    out. ``auto`` is measured at 0.82x its own Lambert rung's held-out relative RMS (0.239 against 0.292);
+    without the extrapolation rule it kept lobes whose peaks fell in the dome's gaps and was at 0.95x (0.276),
+    1.3x at every 4th pixel (docs/figures/outside.md). The bar, 0.9x, lies between the two."""
+    import relight
+    import relight.evaluation as ev
+    from relight.io import YALEB_DARK, diligent_capture, read_yaleb
+
+    d = read_yaleb(YALEB / "yaleB22")
+    keep = np.zeros_like(d.mask)
+    keep[::8, ::8] = True
+    d = dataclasses.replace(d, mask=d.mask & keep)
+    train, held = ev.heldout_split(len(d.filenames), 4, 3)
+    observed = d.images[held][:, d.mask, :]
+    valid = ev.observation_validity(d, held, dark=YALEB_DARK, saturation=0.995)
+    cap_train, surface = diligent_capture(d, lights=train)
+    cap_held, _ = diligent_capture(d, lights=held)
+    err = {}
+    for model in ("lambert", "auto"):
+        f = relight.fit(cap_train, surface, model=model, normals=True, loss="l2")
+        err[model] = ev.relative_rms(np.asarray(ev.predict_fit(f, cap_held, surface)), observed, valid)
+    assert err["auto"] <= 0.9 * err["lambert"], err
