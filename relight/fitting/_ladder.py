@@ -2,9 +2,9 @@
 per-sample result assembled from the rungs' solves.
 
 ``model="auto"``: every rung is fitted on all but every ``holdout``-th light and scored on those; each
-sample keeps the simplest rung whose held-out mean squared error is within two standard errors of the
-noise of the best (:func:`choose_rungs`), then is refitted on every light; a sample whose refitted lobe is
-an extrapolated highlight (:mod:`relight.fitting._extrapolation`) goes one rung down.
+sample keeps the simplest rung (the fewest parameters) whose held-out mean squared error is within two
+standard errors of the noise of the best (:func:`choose_rungs`), then is refitted on every light; a sample
+whose refitted lobe is an extrapolated highlight (:mod:`relight.fitting._extrapolation`) goes one rung down.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ def choose_rungs(trial: dict, rungs, hmask, dt):
     ``trial[k]``: rung k's solve on the training lights (``hmse`` [n], its held-out MSE; ``rms``
     [n], its training RMS); ``hmask``: :func:`heldout_weights`. The noise s^2 is the richest rung's
     training MSE (the smallest); the held-out MSE of n_h Gaussian residuals has a standard error of
-    s^2 sqrt(2 / n_h), and a sample keeps the simplest rung within two of them of the best.
+    s^2 sqrt(2 / n_h), and a sample keeps the simplest rung (the fewest parameters; of Blinn-Phong and GGX,
+    which have as many, the lower held-out MSE) within two of them of the best.
     """
     hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, n]
     n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
@@ -49,7 +50,11 @@ def choose_rungs(trial: dict, rungs, hmask, dt):
     s2 = np.min(np.stack([trial[k]["rms"] ** 2 for k in rungs]), axis=0)
     tol = 2.0 * s2 * np.sqrt(2.0 / n_h)
     ok = hm <= (best + tol)[None]
-    pick = np.argmax(ok, axis=0)
+    # Simplest = fewest parameters. Blinn-Phong and GGX have as many (an albedo and a roughness), so neither is
+    # simpler: between them the held-out error decides (docs/fit.md, "How", item 8).
+    size = np.asarray([Layout(k, False, 0.5).size for k in rungs])[:, None]
+    fewest = ok & (size == np.min(np.where(ok, size, np.iinfo(np.int32).max), axis=0))
+    pick = np.argmin(np.where(fewest, hm, np.inf), axis=0)
     choice = np.asarray(rungs, np.int32)[pick]
     heldout = np.sqrt(hm[pick, np.arange(hm.shape[1])]).astype(dt)
     return choice, heldout

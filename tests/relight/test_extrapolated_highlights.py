@@ -86,3 +86,25 @@ def test_auto_predicts_held_out_lights_of_a_real_face_better_than_lambert():
         f = relight.fit(cap_train, surface, model=model, normals=True, loss="l2")
         err[model] = ev.relative_rms(np.asarray(ev.predict_fit(f, cap_held, surface)), observed, valid)
     assert err["auto"] <= 0.9 * err["lambert"], err
+
+
+def test_the_ladder_keeps_the_fewest_parameters_and_lets_held_out_error_decide_between_equals():
+    """choose_rungs on closed-form trials: held-out MSEs per rung (lambert, blinn_phong, ggx, ggx_aniso), the
+    noise s^2 = 1e-4 (the richest rung's training MSE), 100 held-out observations, so the tolerance is
+    2 s^2 sqrt(2 / 100) = 2.83e-5. A rung is kept when within it of the best; of those, the fewest parameters;
+    between Blinn-Phong and GGX (two lobe parameters each) the lower held-out error, whatever their order."""
+    from relight.fitting._ladder import choose_rungs
+    from relight.materials import GGX_ANISO
+
+    rungs = (LAMBERT, BLINN_PHONG, GGX, GGX_ANISO)
+    hm = np.array([
+        [1.0e-4, 1.5e-4, 1.0e-4, 1.0e-4],  # sample 0: Lambert within noise of the best -> Lambert
+        [9.0e-4, 1.02e-4, 1.00e-4, 1.0e-4],  # sample 1: Blinn-Phong and GGX both within; GGX lower -> GGX
+        [9.0e-4, 1.00e-4, 1.02e-4, 1.0e-4],  # sample 2: the same, Blinn-Phong lower -> Blinn-Phong
+        [9.0e-4, 9.0e-4, 9.0e-4, 1.0e-4],  # sample 3: only the anisotropic rung -> ggx_aniso
+    ])
+    trial = {k: {"hmse": hm[:, i], "rms": np.full(4, 1e-2)} for i, k in enumerate(rungs)}
+    hmask = np.ones((4, 100, 3))
+    choice, heldout = choose_rungs(trial, rungs, hmask, np.float64)
+    assert choice.tolist() == [LAMBERT, GGX, BLINN_PHONG, GGX_ANISO]
+    np.testing.assert_allclose(heldout, np.sqrt([1.0e-4, 1.00e-4, 1.00e-4, 1.0e-4]))
