@@ -5,8 +5,8 @@ A sample's fitted lobe is pinned down where lights fall within its half maximum.
 peak's height is not measured but extrapolated from the lobe's flanks, and height and width trade
 against each other: on real faces (Extended Yale B) a GGX lobe at the roughness floor with F0 near 1,
 its peak in a gap of the rig, predicts 10-15 times the brightest observation of its pixel at the
-held-out light that falls there. ``model="auto"`` does not keep such a rung (docs/fit.md, "The model
-ladder").
+held-out light that falls there. ``model="auto"`` does not keep such a rung (docs/fit.md, "How",
+item 8).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from ._model import Layout
 # A GGX lobe falls to half its peak 0.64 alpha from it in the half vector (D ~ (alpha^2 + theta_h^2)^-2).
 HALF_MAX_HALF_ANGLE = 0.64
 # The predicted peak counts as extrapolated beyond the data above this multiple of the sample's brightest
-# valid observation (docs/fit.md, "The model ladder": 1, 2 and 4 measured on Yale B and DiLiGenT).
+# valid observation (docs/fit.md, "How", item 8: 1, 2 and 4 measured on Yale B and DiLiGenT).
 EXTRAPOLATION_FACTOR = 4.0
 
 
