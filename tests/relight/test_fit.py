@@ -180,6 +180,31 @@ def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
     assert np.all(np.asarray(f.heldout) > 0) and np.all(np.isfinite(np.asarray(f.heldout)))
     # The ladder leaves no lobe collapsed where a lobe was there to fit.
     assert not np.any(np.asarray(f.collapsed)[~lam])
+    # A sample whose lobe is an extrapolated highlight goes one rung down, refitted, again while it is one
+    # (docs/fit.md, "How", item 8). Here every GGX lobe is declared one (the closed-form cases of the flag:
+    # tests/relight/test_extrapolated_highlights.py): GGX samples step to Blinn-Phong, whose lobes pass, so
+    # they stop there, with Blinn-Phong's held-out error; the other samples keep their fit exactly.
+    from relight.fitting import _driver
+    from relight.materials import BLINN_PHONG, GGX
+
+    real = _driver.extrapolated_highlights
+    steps = []
+
+    def every_ggx_lobe(u, lay, data, index, size):
+        steps.append((lay.model, len(index)))
+        return np.full(len(index), lay.model == GGX) if lay.model == GGX else real(u, lay, data, index, size)
+
+    _driver.extrapolated_highlights = every_ggx_lobe
+    try:
+        g = fit(cap, surface, model="auto")
+    finally:
+        _driver.extrapolated_highlights = real
+    was_ggx = model == GGX
+    assert was_ggx.any() and (GGX, int(was_ggx.sum())) in steps
+    assert np.all(np.asarray(g.model)[was_ggx] == BLINN_PHONG)
+    assert np.array_equal(np.asarray(g.model)[~was_ggx], model[~was_ggx])
+    np.testing.assert_array_equal(np.asarray(g.rho_d)[~was_ggx], np.asarray(f.rho_d)[~was_ggx])
+    assert np.all(np.asarray(g.heldout)[was_ggx] != np.asarray(f.heldout)[was_ggx])
 
 
 @pytest.mark.parametrize("model", ["ggx", "blinn_phong"])
