@@ -48,7 +48,7 @@ from ..materials._maps import MODELS
 from . import _model as _fit_model
 from ._devices import _chunk_size, _chunks_of, _fit_devices, _placer
 from ._extrapolation import extrapolated_highlights
-from ._ladder import _assemble, _rungs, choose_rungs, finish_block, heldout_weights
+from ._ladder import _assemble, _rungs, choose_rungs, finish_block, heldout_weights, specular_cosines
 from ._model import Layout
 from ._observations import _normalise, _obs_bucket, _observations_of
 from ._options import FitOptions, as_options
@@ -57,6 +57,9 @@ from ._solvers import _solve_chunk, _start_chunk, resolve_solver
 from ._sources import open_source, read_block
 
 LOSSES = ("cauchy", "l2")
+# relight.fit's model and loss when not told: chosen on the outside-data suite (docs/fit.md, "Defaults").
+DEFAULT_MODEL = "auto"
+DEFAULT_LOSS = "l2"
 # fit's samples per block when FitOptions.block is None.
 DEFAULT_BLOCK = 4096
 
@@ -134,8 +137,8 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
     return plan
 
 
-def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = False, solver="lm",
-        loss: str = "cauchy", cauchy: float = 0.1, alpha_floor: float | None = None, holdout: int = 5,
+def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals: bool = False, solver="lm",
+        loss: str = DEFAULT_LOSS, cauchy: float = 0.1, alpha_floor: float | None = None, holdout: int = 5,
         options: FitOptions | None = None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
@@ -150,12 +153,14 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
             a time, never whole (``relight.io.open_capture_store``, ``relight.io.open_capture``, a
             ``relight.io.SampleSubset``). Sample p of the capture is sample p of ``surface``.
         surface: the samples' ``stage.Surface``.
-        model: a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx", "ggx_aniso") or
-            "auto" (the ladder: every rung is fitted on all but every ``holdout``-th light, scored
-            on those, and each sample keeps the simplest rung whose held-out mean squared error is
+        model: "auto" (default) or a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",
+            "ggx_aniso"). "auto" is the ladder: every rung is fitted on all but every ``holdout``-th of
+            each sample's valid observations ranked from its mirror direction outward, scored on those,
+            and each sample keeps the simplest rung whose held-out and training mean squared errors are
             within two standard errors of the noise of the best; then it is refitted on every light, and
             goes one rung down while its lobe's peak lies where no light saw it and predicts more than
-            4x its brightest observation: docs/fit.md, "How", item 8).
+            4x its brightest observation (docs/fit.md, "How", item 8). The defaults, "auto" with
+            ``loss="l2"``, are the suite's choice (docs/fit.md, "Defaults").
         normals: also fit the shading normal (photometric-stereo start).
         solver: an Optimistix least-squares solver or minimiser object
             (``optx.LevenbergMarquardt(rtol, atol)``, ``optx.GaussNewton``, ``optx.Dogleg``,
@@ -167,10 +172,12 @@ def fit(capture, surface: stage.Surface, *, model: str = "ggx", normals: bool = 
             divided by its RMS irradiance (docs/fit.md, "Units and scale"), so ``atol`` applies to
             residuals in radiance per unit irradiance, whatever the capture's units: the fit is
             invariant under a change of units (rig intensities and radiance x k).
-        loss: "cauchy" (scale ``cauchy`` x the sample's RMS radiance) or "l2".
+        loss: "l2" (default) or "cauchy" (scale ``cauchy`` x the sample's RMS radiance; robust to
+            unmasked shadows, but it also down-weights real highlights).
         cauchy: the Cauchy loss's relative scale.
         alpha_floor: smallest roughness; default :func:`rig_alpha_floor`.
-        holdout: for ``model="auto"``: every ``holdout``-th light is held out.
+        holdout: for ``model="auto"``: every ``holdout``-th of each sample's observations, ranked
+            from the mirror direction, is held out.
         options: how the fit runs (:class:`FitOptions`: chunk, block, rounds, steps, tolerances,
             devices, progress, on_block); None = the defaults.
 
@@ -261,7 +268,7 @@ def _fit_block(plan: _Plan, surface: stage.Surface, b0: int, b1: int, phases: _P
                                 plan.n_keep, dt)
         parts.append(tuple(x[:m] for x in part))
     del rad, mask
-    obs, w, wi, wo, irr, light = (np.concatenate(x) for x in zip(*parts, strict=True))
+    obs, w, wi, wo, irr, _light = (np.concatenate(x) for x in zip(*parts, strict=True))
     del parts
     # The solver sees radiance per unit irradiance (docs/fit.md, "Units and scale").
     obs, irr, unit = _normalise(obs, w, irr)
@@ -278,11 +285,11 @@ def _fit_block(plan: _Plan, surface: stage.Surface, b0: int, b1: int, phases: _P
         fits = {k: (every, _fit_rung(data, w, zero, every, lay(k), None, opts, phases(f"fit {MODELS[k]}", P)))}
         heldout = np.zeros(n, dt)
     else:
-        hmask = heldout_weights(light, w, plan.holdout)
+        hmask = heldout_weights(w, specular_cosines(data, plan.normals, opts["size"]), plan.holdout)
         train = w - hmask
         trial = {k: _fit_rung(data, train, hmask, every, lay(k), None, opts,
                               phases(f"fit {MODELS[k]} (held out)", P)) for k in rungs}
-        choice, heldout = choose_rungs(trial, rungs, hmask, dt)
+        choice, heldout = choose_rungs(trial, rungs, hmask, np.sum(train[..., 0] > 0, axis=1), dt)
         fits = {}
         for k in rungs:
             sel = np.nonzero(choice == k)[0]

@@ -1,9 +1,10 @@
 """The model ladder: which rungs a fit tries, the held-out choice between them, and a block's
 per-sample result assembled from the rungs' solves.
 
-``model="auto"``: every rung is fitted on all but every ``holdout``-th light and scored on those; each
-sample keeps the simplest rung (the fewest parameters) whose held-out mean squared error is within two
-standard errors of the noise of the best (:func:`choose_rungs`), then is refitted on every light; a sample
+``model="auto"``: every rung is fitted on all but every ``holdout``-th of each sample's observations (ranked
+from its mirror direction outward) and scored on those; each sample keeps the simplest rung (the fewest
+parameters) whose held-out and training mean squared errors are within two standard errors of the best
+(:func:`choose_rungs`), then is refitted on every light; a sample
 whose refitted lobe is an extrapolated highlight (:mod:`relight.fitting._extrapolation`) goes one rung down.
 """
 
@@ -16,6 +17,7 @@ import numpy as np
 from ..materials._maps import BLINN_PHONG, GGX, GGX_ANISO, LAMBERT, MODELS, SUBSURFACE
 from . import _model as _fit_model
 from ._devices import _chunks_of
+from ._init import photometric_stereo
 from ._model import Layout
 from ._result import FIELDS
 
@@ -29,29 +31,72 @@ def _rungs(model) -> tuple[int, ...]:
     return (MODELS.index(model),)
 
 
-def heldout_weights(light, w, holdout: int):
-    """The held-out observations' weights [n, N, C]: every ``holdout``-th light (those with
-    ``light % holdout == holdout // 2``) of the valid observations ``w``."""
-    return (light % holdout == holdout // 2)[..., None].astype(w.dtype) * w
+@jax.jit
+def _ps_normal_chunk(obs, w, wi, wo, irr):
+    return jax.vmap(lambda *a: photometric_stereo(*a, True)[0])(obs, w, wi, wo, irr)
 
 
-def choose_rungs(trial: dict, rungs, hmask, dt):
+def specular_cosines(data, normals: bool, size: int) -> np.ndarray:
+    """Each observation's cosine between its half vector and the sample's normal [n, N]: the normal
+    from photometric stereo on the valid observations (:func:`relight.fitting._init.photometric_stereo`)
+    when the fit fits normals, else the surface's. ``data``: the block's ``(obs, w, wi, wo, irr)``
+    (surface-frame directions); ``size`` samples per call (padded: one program)."""
+    obs, w, wi, wo, irr = data
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+    if not normals:
+        return h[..., 2]
+    normal = np.zeros((len(obs), 3), h.dtype)
+    for idx, m in _chunks_of(np.arange(len(obs)), size):
+        part = _ps_normal_chunk(*(jnp.asarray(x[idx]) for x in data))
+        normal[idx[:m]] = np.asarray(part)[:m]
+    return np.einsum("nkc,nc->nk", h, normal)
+
+
+def heldout_weights(w, cos_h, holdout: int):
+    """The held-out observations' weights [n, N, C]: each sample's valid observations ``w`` ranked by
+    how close their half vector is to the normal (``cos_h`` [n, N], :func:`specular_cosines`, highest
+    first), every ``holdout``-th of them (ranks ``holdout // 2``, ``holdout // 2 + holdout``, ...).
+
+    Why ranked: the rungs differ in the lobe, near the mirror direction. Held-out lights taken by index
+    miss a highlight that covers one or two of a sample's lights, and the ladder then cannot tell a lobe
+    from none (docs/fit.md, "How", item 8). Ranked, every ``holdout`` consecutive observations from the
+    mirror direction outward lose one to the held-out set and keep the rest for training."""
+    valid = np.any(w > 0, axis=-1)
+    order = np.argsort(np.where(valid, -cos_h, np.inf), axis=1, kind="stable")
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(order.shape[1])[None], axis=1)
+    held = valid & (rank % holdout == holdout // 2)
+    return held[..., None].astype(w.dtype) * w
+
+
+def choose_rungs(trial: dict, rungs, hmask, n_train, dt):
     """Each sample's rung from the held-out trials: (choice [n] int32, held-out RMS [n]).
 
-    ``trial[k]``: rung k's solve on the training lights (``hmse`` [n], its held-out MSE; ``rms``
-    [n], its training RMS); ``hmask``: :func:`heldout_weights`. The noise s^2 is the richest rung's
-    training MSE (the smallest); the held-out MSE of n_h Gaussian residuals has a standard error of
-    s^2 sqrt(2 / n_h), and a sample keeps the simplest rung (the fewest parameters; of Blinn-Phong and GGX,
-    which have as many, the lower held-out MSE) within two of them of the best.
+    ``trial[k]``: rung k's solve on the training observations (``hmse`` [n], its held-out MSE; ``rms``
+    [n], its training RMS); ``hmask``: :func:`heldout_weights`; ``n_train`` [n]: each sample's training
+    observations. The mean of n squared Gaussian residuals of variance s^2 has a standard error of
+    s^2 sqrt(2 / n). A rung is kept when two tests pass:
+
+    - held out: its held-out MSE is within two standard errors of the best rung's, with s^2 the richest
+      rung's training MSE (the smallest) and n the held-out count;
+    - training: its training MSE is within two standard errors (n the training count) of the lowest
+      training MSE among the rungs that pass the held-out test. A highlight that covers one or two of a
+      sample's observations is rarely held out; a rung without the lobe then predicts the held-out
+      observations as well, but leaves the highlight in its training residual.
+
+    Of the kept rungs, the simplest: the fewest parameters; of Blinn-Phong and GGX, which have as many,
+    the lower held-out MSE (docs/fit.md, "How", item 8).
     """
     hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, n]
+    tr = np.stack([trial[k]["rms"] ** 2 for k in rungs])  # [K, n]
     n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
-    best = np.min(hm, axis=0)
-    s2 = np.min(np.stack([trial[k]["rms"] ** 2 for k in rungs]), axis=0)
-    tol = 2.0 * s2 * np.sqrt(2.0 / n_h)
-    ok = hm <= (best + tol)[None]
+    s2 = np.min(tr, axis=0)
+    ok = hm <= (np.min(hm, axis=0) + 2.0 * s2 * np.sqrt(2.0 / n_h))[None]
+    t_best = np.min(np.where(ok, tr, np.inf), axis=0)
+    ok &= tr <= (t_best * (1.0 + 2.0 * np.sqrt(2.0 / np.maximum(n_train, 1.0))))[None]
     # Simplest = fewest parameters. Blinn-Phong and GGX have as many (an albedo and a roughness), so neither is
-    # simpler: between them the held-out error decides (docs/fit.md, "How", item 8).
+    # simpler: between them the held-out error decides.
     size = np.asarray([Layout(k, False, 0.5).size for k in rungs])[:, None]
     fewest = ok & (size == np.min(np.where(ok, size, np.iinfo(np.int32).max), axis=0))
     pick = np.argmin(np.where(fewest, hm, np.inf), axis=0)
