@@ -410,7 +410,7 @@ LADDER = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "auto")
 
 
 def fit_models(folder: Path, mesh, resolution: int, truth, progress) -> list[dict]:
-    """Reading (a) fitted with each of LADDER (relight.fit's defaults otherwise: Cauchy loss, no normals): per
+    """Reading (a) fitted with each of LADDER (relight.fit's defaults otherwise: its default loss, no normals): per
     model the median relative albedo error per channel over the texels seen and not flagged, F0 and alpha
     errors over the texels it gave a lobe, the fraction of seen texels flagged, ``collapsed`` and
     ``ambiguous``, the rungs ``auto`` chose, the relit relative RMS over the same texels (below), and the
@@ -548,6 +548,8 @@ def command(s: dict) -> str:
 
 
 def markdown(result: dict, total_s: float) -> str:
+    import relight
+
     s, rd, p = result["settings"], result["render"], result["projection_max_px"]
     agree = max(c["sensor_agreement_px"] for c in rd["cameras"])
     return "\n".join([
@@ -569,7 +571,8 @@ def markdown(result: dict, total_s: float) -> str:
         f"project through (a)'s cameras onto their film positions to {agree:.2g} px (`write_mitsuba_scene`'s "
         f"sensor as exported).", "",
         "## The ladder on reading (a)", "",
-        "`relight.fit(capture, surface, model=M)` with the library's defaults otherwise (Cauchy loss, no "
+        "`relight.fit(capture, surface, model=M)` with the library's defaults otherwise ("
+        + relight.fitting.DEFAULT_LOSS + " loss, no "
         "normals). Medians over the texels seen and not flagged by that fit; F0 and alpha over those it gave a "
         "lobe (alpha: the geometric mean for ggx_aniso); flagged, collapsed and ambiguous over the seen texels. "
         "Relit: sqrt(sum (fit - truth)^2 / sum truth^2) over the same texels and RGB, each texel toward the "

@@ -5,7 +5,7 @@ BRDF models", EGSR).
 
     .venv/bin/python scripts/table_merl.py                    # all 80, 512 texels: docs/figures/merl_*
     .venv/bin/python scripts/table_merl.py --materials gold-metallic-paint,chrome --texels 256
-    .venv/bin/python scripts/table_merl.py --fits ggx --loss l2 --suffix _l2   # docs/figures/merl_table_l2.md
+    .venv/bin/python scripts/table_merl.py --fits ggx,auto --loss cauchy --suffix _cauchy  # merl_table_cauchy.md
     .venv/bin/python scripts/table_merl.py --holdout-check --materials blue-acrylic,aventurnine
 
 Scene (scripts/bench_fit.py's): a sphere of radius 50 mm at the centre of the
@@ -16,7 +16,7 @@ frame), radiance x (1 + 0.01 N(0, 1)) as the data the fitter sees.
 
 Per material and rung (``relight.fit(capture, surface, model=...)`` for
 lambert, blinn_phong, ggx, ggx_aniso and auto; geometric normals, default
-solver and Cauchy loss):
+solver and loss, relight.fit's default unless --loss):
 
 * reflectance error: relative RMS over the valid observations of the fitted
   model's OLAT radiance (``stage.simulate`` of ``Fit.material()`` in the fitted
@@ -110,7 +110,8 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=FIG)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fits", default=",".join(FITS), help=f"comma-separated subset of {','.join(FITS)}")
-    ap.add_argument("--loss", default="cauchy", choices=relight.LOSSES, help="relight.fit's loss")
+    ap.add_argument("--loss", default=relight.fitting.DEFAULT_LOSS, choices=relight.LOSSES,
+                    help=f"relight.fit's loss (default: its own, {relight.fitting.DEFAULT_LOSS})")
     ap.add_argument("--suffix", default="", help="appended to the output names (merl_table<suffix>.md, ...)")
     ap.add_argument("--holdout-check", action="store_true",
                     help="no fits: per material, how often auto's held-out lights (every 5th) miss the highlight")
@@ -196,8 +197,8 @@ def holdout_check(name, surface, rig, cam, holdout: int = 5, excess: float = 3.0
           f"{np.mean(n_held[lit] == 0) if lit.any() else 0:.2f}", flush=True)
 
 
-def write_outputs(rows, checks, out: Path, texels: int, cmd: str, wall: float, fits=FITS, loss="cauchy",
-                  suffix=""):
+def write_outputs(rows, checks, out: Path, texels: int, cmd: str, wall: float, fits=FITS,
+                  loss=relight.fitting.DEFAULT_LOSS, suffix=""):
     out.mkdir(parents=True, exist_ok=True)
     rungs = [k for k in RUNGS if k in fits] or list(fits)
     best = lambda r: min(r[f"refl_{k}"] for k in rungs)  # noqa: E731

@@ -9,11 +9,14 @@ the packed ``observations``, the parameter ``Layout``, the start
 ``residual_and_jacobian``), a round of the solve (``solve_samples``) and the
 per-texel subsurface data (``subsurface_texel_data``). See docs/fit.md."""
 
+from ._driver import DEFAULT_LOSS as DEFAULT_LOSS
+from ._driver import DEFAULT_MODEL as DEFAULT_MODEL
 from ._driver import LOSSES as LOSSES
 from ._driver import fit as fit
 from ._folder import FitFolderResult as FitFolderResult
 from ._folder import fit_diligent_folder as fit_diligent_folder
 from ._folder import fit_folder as fit_folder
+from ._joint import SUBSURFACE_LOSS as SUBSURFACE_LOSS
 from ._joint import fit_with_subsurface as fit_with_subsurface
 from ._joint import subsurface_radiance as subsurface_radiance
 from ._lm import NormalLevenbergMarquardt as NormalLevenbergMarquardt
@@ -50,6 +53,7 @@ from ._result import result_code as result_code
 from ._result import result_message as result_message
 from ._result import rig_alpha_floor as rig_alpha_floor
 from ._resume import fit_resumable as fit_resumable
+from ._run import DILIGENT_LOSS as DILIGENT_LOSS
 from ._run import DILIGENT_MODEL as DILIGENT_MODEL
 from ._run import fit_diligent as fit_diligent
 from ._run import subsurface_step as subsurface_step

@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from ._driver import DEFAULT_MODEL
+from ._joint import SUBSURFACE_LOSS
 from ._options import FitOptions, as_options
 
 
@@ -164,14 +166,16 @@ def fit_folder(capture_dir: str | os.PathLike, folder: str | os.PathLike, *, par
                          "captures only")
     times["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fitted, part_info = fit_resumable(capture, surface, parts, resume=resume, options=options, **kwargs)
+    # With subsurface, the BRDF stage takes fit_with_subsurface's loss (relight.fitting._joint.SUBSURFACE_LOSS).
+    loss = {} if subsurface is None else {"loss": SUBSURFACE_LOSS}
+    fitted, part_info = fit_resumable(capture, surface, parts, resume=resume, options=options, **kwargs, **loss)
     times["fit_s"] = time.perf_counter() - t0
     sss = None
     if subsurface is not None:
         t0 = time.perf_counter()
         labels = None if regions is None else read_regions(regions, surface)
         fitted, sss = subsurface_step(capture, surface, fitted, per=subsurface, regions=labels, eta=eta,
-                                      metadata=metadata, passes=passes, model=model or "ggx", normals=normals,
+                                      metadata=metadata, passes=passes, model=model or DEFAULT_MODEL, normals=normals,
                                       solver=solver, options=dataclasses.replace(options, on_block=None))
         times["subsurface_s"] = time.perf_counter() - t0
         if sss["eta_from"] == "argument":

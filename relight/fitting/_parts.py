@@ -83,8 +83,8 @@ class _Plan:
     padded shapes, the valid counts), plus the fingerprint of it all."""
 
     def __init__(self, capture, surface, block: int, fit_kw: dict):
-        kw = dict(model="ggx", normals=False, solver="lm", loss="cauchy", cauchy=0.1, alpha_floor=None, holdout=5,
-                  options=None)
+        kw = dict(model=_d.DEFAULT_MODEL, normals=False, solver="lm", loss=_d.DEFAULT_LOSS, cauchy=0.1,
+                  alpha_floor=None, holdout=5, options=None)
         unknown = set(fit_kw) - set(kw)
         if unknown:
             raise TypeError(f"fit_parts: unknown fit keyword(s) {sorted(unknown)} (on_block is fit_parts' own)")

@@ -134,7 +134,7 @@ def solve_samples(
     *,
     max_steps: int,
     solver="lm",
-    cauchy: float | None = 0.1,
+    cauchy: float | None = None,
     heldout_weight=None,
 ) -> tuple:
     """``max_steps`` steps of the fitter's solve for each sample, ``jax.vmap``-ed over the samples.
@@ -151,7 +151,8 @@ def solve_samples(
         layout: the rung's :class:`Layout`.
         max_steps: solver steps.
         solver: a name of ``SOLVERS`` or an Optimistix solver object (:func:`resolve_solver`).
-        cauchy: the Cauchy loss's scale relative to each sample's RMS radiance; None: plain least squares.
+        cauchy: the Cauchy loss's scale relative to each sample's RMS radiance; None (default, as
+            ``relight.fit``'s default loss): plain least squares.
         heldout_weight: [P, N, C] weights of held-out observations (scored, not fitted); default none.
 
     Returns:

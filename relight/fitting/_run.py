@@ -13,12 +13,16 @@ import numpy as np
 
 import skin_bssrdf
 
+from ._driver import DEFAULT_MODEL
 from ._joint import fit_with_subsurface
 from ._report import angular_error_deg
 from ._subsurface import fit_subsurface
 
-# The model a DiLiGenT object is fitted with unless told otherwise (scripts/eval_diligent.py's).
+# The model and loss a DiLiGenT object is fitted with unless told otherwise (scripts/eval_diligent.py's). Its
+# product is the normal, which the robust loss recovers better past unmasked cast shadows and interreflections
+# (docs/fit.md, "Defaults").
 DILIGENT_MODEL = "blinn_phong"
+DILIGENT_LOSS = "cauchy"
 
 
 def fit_diligent(data, *, name: str | None = None, subsample: int = 1, **fit_kw):
@@ -52,7 +56,7 @@ def fit_diligent(data, *, name: str | None = None, subsample: int = 1, **fit_kw)
         keep[::subsample, ::subsample] = True
         data = dataclasses.replace(data, mask=data.mask & keep)
     capture, surface = diligent_capture(data)
-    fitted = fit(capture, surface, **{"model": DILIGENT_MODEL, **fit_kw, "normals": True})
+    fitted = fit(capture, surface, **{"model": DILIGENT_MODEL, "loss": DILIGENT_LOSS, **fit_kw, "normals": True})
     report = {"object": name, "pixels": int(surface.num_samples),
               "lights": int(len(data.filenames)), "subsample": int(subsample)}
     if data.normals_gt is not None:
@@ -103,7 +107,7 @@ def write_diligent_folder(folder: str | os.PathLike, fitted, surface, mask, dili
 
 
 def subsurface_step(capture, surface, fitted, *, per: str = "region", regions=None, eta: float | None = None,
-                    metadata: dict | None = None, passes: int = 1, model: str = "ggx", normals: bool = False,
+                    metadata: dict | None = None, passes: int = 1, model: str = DEFAULT_MODEL, normals: bool = False,
                     solver="lm", options=None):
     """The subsurface fit after a BRDF fit: :func:`relight.fit_subsurface`, or with ``passes`` > 1
     :func:`relight.fit_with_subsurface`'s alternation started from ``fitted``.

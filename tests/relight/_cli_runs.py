@@ -41,5 +41,5 @@ def head16(tmp_path_factory) -> tuple[Path, Path]:
         if not (maps / "report.json").is_file():
             with small_index():
                 assert main([*HEAD16_SIMULATE, "--out", str(cap)]) == 0
-                assert main(["fit", str(cap), "--out", str(maps), "--quiet"]) == 0
+                assert main(["fit", str(cap), "--model", "ggx", "--out", str(maps), "--quiet"]) == 0
     return cap, maps

@@ -91,7 +91,7 @@ def test_sample_subset_reads_the_loaded_texels(captures):
 def test_store_equals_folder_and_streams(captures, tmp_path):
     cap, store, ref = captures
     out = tmp_path / "o"
-    assert main(["fit", str(store), "--out", str(out), "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(store), "--model", "ggx", "--out", str(out), "--quiet", "--no-index"]) == 0
     # The same float32 radiance and mask read through another container: the same fit, bit for bit.
     _assert_maps(_maps(out), _maps(ref))
     settings = json.loads((out / "settings.json").read_text())["resolved"]
@@ -103,7 +103,8 @@ def test_store_equals_folder_and_streams(captures, tmp_path):
 def test_block_size_gives_the_same_maps(captures, tmp_path):
     cap, _, ref = captures
     out = tmp_path / "o"
-    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(cap), "--model", "ggx",
+                 "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     _assert_maps(_maps(out), _maps(ref))
     rep = _report(out)
     assert rep["parts"]["blocks"] == 4 and rep["parts"]["fitted_blocks"] == 4
@@ -118,7 +119,8 @@ class _Killed(Exception):
 def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
     cap, store, _ = captures
     whole = tmp_path / "whole"
-    assert main(["fit", str(store), "--out", str(whole), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(store), "--model", "ggx",
+                 "--out", str(whole), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     # A run killed after its second block: what `relight fit --block 32` would have left in OUT/.parts.
     out = tmp_path / "o"
     c, surface, _, _ = open_texel_capture(store)
@@ -130,15 +132,17 @@ def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
             raise _Killed
 
     with pytest.raises(_Killed):
-        fit_resumable(c, surface, out / ".parts", solver="lm",
+        fit_resumable(c, surface, out / ".parts", model="ggx", solver="lm",
                       options=FitOptions(block=BLOCK, on_block=stop_after_two))
     assert len(list((out / ".parts").glob("part_*.npz"))) == 2
-    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(store), "--model", "ggx",
+                 "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["blocks"], rep["resumed_blocks"], rep["fitted_blocks"]) == (4, 2, 2)
     _assert_maps(_maps(out), _maps(whole))  # resumed = uninterrupted, bit for bit (same block, same shapes)
     # Finished: a second --resume fits nothing and writes the same maps.
-    assert main(["fit", str(store), "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(store), "--model", "ggx",
+                 "--out", str(out), "--block", str(BLOCK), "--resume", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["resumed_blocks"], rep["fitted_blocks"]) == (4, 0)
     _assert_maps(_maps(out), _maps(whole))
@@ -147,16 +151,18 @@ def test_resume_after_an_interruption_refits_only_the_rest(captures, tmp_path):
 def test_resume_refuses_a_changed_setting_and_a_fresh_run_restarts(captures, tmp_path, capsys):
     cap, _, _ = captures
     out = tmp_path / "o"
-    assert main(["fit", str(cap), "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(cap), "--model", "ggx",
+                 "--out", str(out), "--block", str(BLOCK), "--quiet", "--no-index"]) == 0
     before = _maps(out)
     capsys.readouterr()
     for changed in (["--block", "16"], ["--block", str(BLOCK), "--model", "lambert"]):
-        assert main(["fit", str(cap), "--out", str(out), "--resume", "--quiet", "--no-index", *changed]) == 1
+        assert main(["fit", str(cap), "--model", "ggx",
+                     "--out", str(out), "--resume", "--quiet", "--no-index", *changed]) == 1
         err = capsys.readouterr().err
         assert "--resume" in err and "another fit" in err and "without --resume" in err, err
         _assert_maps(_maps(out), before)  # the refused run wrote nothing
     # Without --resume the parts are cleared and every block is fitted under the new setting.
-    assert main(["fit", str(cap), "--out", str(out), "--block", "16", "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(out), "--block", "16", "--quiet", "--no-index"]) == 0
     rep = _report(out)["parts"]
     assert (rep["blocks"], rep["resumed_blocks"], rep["fitted_blocks"]) == (7, 0, 7)
     assert len(list((out / ".parts").glob("part_*.npz"))) == 7
@@ -167,18 +173,18 @@ def test_parts_folder_that_is_not_ours_is_not_deleted(captures, tmp_path, capsys
     out = tmp_path / "o"
     (out / ".parts").mkdir(parents=True)
     (out / ".parts" / "notes.txt").write_text("mine")
-    assert main(["fit", str(cap), "--out", str(out), "--quiet"]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(out), "--quiet"]) == 1
     assert "refusing to delete" in capsys.readouterr().err
     assert (out / ".parts" / "notes.txt").read_text() == "mine"
 
 
 def test_bad_block_and_devices_flags(captures, tmp_path, capsys):
     cap, _, _ = captures
-    assert main(["fit", str(cap), "--out", str(tmp_path / "o"), "--block", "0", "--quiet"]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "o"), "--block", "0", "--quiet"]) == 1
     assert "--block 0" in capsys.readouterr().err
-    assert main(["fit", str(cap), "--out", str(tmp_path / "o"), "--devices", "64", "--quiet"]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "o"), "--devices", "64", "--quiet"]) == 1
     assert "--devices 64" in capsys.readouterr().err
-    assert main(["fit", str(cap), "--out", str(tmp_path / "o"), "--devices", "some", "--quiet"]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "o"), "--devices", "some", "--quiet"]) == 1
     assert "--devices some" in capsys.readouterr().err
 
 
@@ -238,7 +244,8 @@ def two_devices(captures, tmp_path_factory):
     subprocess's counts)."""
     cap, _, _ = captures
     root = tmp_path_factory.mktemp("devices")
-    fit = ["fit", str(cap), "--quiet", "--no-index"]  # no index.html: its sweep is not what these runs test
+    fit = ["fit", str(cap), "--model", "ggx",
+           "--quiet", "--no-index"]  # no index.html: its sweep is not what these runs test
     runs = [({}, [*fit, "--devices", "1", "--out", str(root / "d1")]),
             ({"RELIGHT_CACHE_DIR": str(root / "named")}, ["--cache-dir", "off", *fit, "--devices", "2",
                                                           "--out", str(root / "d2")])]
@@ -258,7 +265,8 @@ def test_compile_cache_is_written_then_hit(captures, tmp_path):
     cap, _, _ = captures
     # --no-index: the fit's own programs only (index.html's sweep, at the commands' full size in a fresh
     # process, would add render programs and seconds, and is not what the cache is tested with).
-    argv = ["fit", str(cap), "--out", str(tmp_path / "o"), "--model", "lambert", "--quiet", "--no-index"]
+    argv = ["fit", str(cap), "--model", "ggx",
+            "--out", str(tmp_path / "o"), "--model", "lambert", "--quiet", "--no-index"]
     xdg = tmp_path / "xdg"
     # Default location: $XDG_CACHE_HOME/relight/jax (RELIGHT_CACHE_DIR unset).
     first = _counted(argv, {"XDG_CACHE_HOME": str(xdg)})

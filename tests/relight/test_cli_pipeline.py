@@ -141,7 +141,7 @@ def test_render_maps_model_based_agrees_with_image_based(pipeline):
 
 
 def test_fit_missing_capture_names_the_folder(tmp_path, capsys):
-    assert main(["fit", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert main(["fit", str(tmp_path / "nowhere"), "--model", "ggx", "--out", str(tmp_path / "o"), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "nowhere" in err and "Traceback" not in err
 
@@ -153,7 +153,7 @@ def test_fit_corrupt_light_image_names_the_file(pipeline, tmp_path, capsys):
     victim = broken / "views" / "v000" / "l007.exr"
     data = victim.read_bytes()
     victim.write_bytes(data[: len(data) // 3])
-    assert main(["fit", str(broken), "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert main(["fit", str(broken), "--model", "ggx", "--out", str(tmp_path / "o"), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "l007.exr" in err and err.startswith("relight fit: error:")
 
@@ -162,7 +162,7 @@ def test_fit_method_is_a_usage_error(pipeline, tmp_path, capsys):
     """``fit --method`` (the solver's old name) is gone: argparse refuses it (``--solver`` is the flag)."""
     _, cap, _, _ = pipeline
     with pytest.raises(SystemExit) as exc:
-        main(["fit", str(cap), "--out", str(tmp_path / "o"), "--method", "simplex"])
+        main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "o"), "--method", "simplex"])
     assert exc.value.code == 2
     assert "unrecognized arguments: --method simplex" in capsys.readouterr().err
 
@@ -280,6 +280,6 @@ def test_fit_refuses_a_corrupt_envmap_before_fitting(pipeline, tmp_path, capsys)
     _, cap, _, _ = pipeline
     bad = tmp_path / "bad.exr"
     bad.write_bytes(b"not an exr")
-    assert main(["fit", str(cap), "--out", str(tmp_path / "o"), "--envmap", str(bad), "--quiet"]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "o"), "--envmap", str(bad), "--quiet"]) == 1
     assert "bad.exr" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

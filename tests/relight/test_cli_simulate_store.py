@@ -17,8 +17,9 @@ RES = 16
 COMMON = ["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", "32", "--quiet"]
 NOISE = ["--noise", "300", "--read-noise", "2", "--seed", "5"]
 # The two forms run the same kernels on differently shaped chunks (the folder form 64 lights x every seen
-# texel, the store 16 lights x one padded block), so XLA may round the last bit differently: 2 float32 ulps.
-RTOL, ATOL = 2.5e-7, 1e-7
+# texel, the store 16 lights x one padded block), so XLA may round the last bit differently: 2 float32 ulps on one
+# machine, up to 1.4e-6 relative (12 ulps) on another of the same kind whose CPU vectorises the sums differently.
+RTOL, ATOL = 2e-6, 1e-7
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +108,7 @@ def test_fit_reads_the_store_as_the_folder(captures, tmp_path):
     """``relight fit`` on the store and on the folder (the shared run's `relight fit folder --quiet`) gives the
     same maps (the inputs agree to float32 rounding; the fit is deterministic)."""
     mf = captures["fit"]
-    assert main(["fit", str(captures["store.zarr"]), "--out", str(tmp_path / "ms"), "--quiet"]) == 0
+    assert main(["fit", str(captures["store.zarr"]), "--model", "ggx", "--out", str(tmp_path / "ms"), "--quiet"]) == 0
     (tf, _), (ts, _) = read_maps(mf), read_maps(tmp_path / "ms")
     np.testing.assert_array_equal(tf.coverage, ts.coverage)
     for name in ("albedo", "specular", "alpha"):

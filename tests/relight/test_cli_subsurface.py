@@ -40,7 +40,8 @@ def sss(tmp_path_factory):
     mesh = write_sphere_obj(root / "sphere.obj", RADIUS, 24, 48)
     cap, maps = root / "capture", root / "maps"
     assert _sim(mesh, cap, "--subsurface", PRESET) == 0
-    assert main(["fit", str(cap), "--subsurface", "region", "--out", str(maps), "--quiet", "--no-index"]) == 0
+    assert main(["fit", str(cap), "--model", "ggx",
+                 "--subsurface", "region", "--out", str(maps), "--quiet", "--no-index"]) == 0
     white = root / "white.exr"
     write_exr(white, np.ones((16, 32, 3), np.float32))
     # The truth with the subsurface rung replaced by the local Lambert term (GGX rung): the control.
@@ -105,7 +106,8 @@ def test_a_second_pass_removes_the_lobe_bias(sss, tmp_path):
     _, _, cap, maps, _, _ = sss
     one = np.array(json.loads((maps / "report.json").read_text())["subsurface"]["mfp_median_mm"])
     out = tmp_path / "two"
-    assert main(["fit", str(cap), "--subsurface", "region", "--passes", "2", "--out", str(out), "--quiet",
+    assert main(["fit", str(cap), "--model", "ggx",
+                 "--subsurface", "region", "--passes", "2", "--out", str(out), "--quiet",
                  "--no-index"]) == 0
     ss = json.loads((out / "report.json").read_text())["subsurface"]
     two = np.array(ss["mfp_median_mm"])
@@ -237,7 +239,7 @@ def test_bad_fit_subsurface_flags_are_refused(sss, tmp_path, capsys, extra, mess
     _, _, cap, _, _, _ = sss
     (tmp_path / "labels.png").write_bytes(b"")
     extra = [str(tmp_path / e) if e.endswith(".png") else e for e in extra]
-    assert main(["fit", str(cap), "--out", str(tmp_path / "out"), "--quiet", *extra]) == 1
+    assert main(["fit", str(cap), "--model", "ggx", "--out", str(tmp_path / "out"), "--quiet", *extra]) == 1
     err = capsys.readouterr().err
     assert "relight fit: error:" in err and message in err, err
 

@@ -292,7 +292,8 @@ def fitted(tmp_path_factory):
     with small_index():
         assert main(["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", "24",
                      "--out", str(root / "cap"), "-qq"]) == 0
-        assert main(["fit", str(root / "cap"), "--out", str(root / "maps"), "--solver", "gn", "--normals",
+        assert main(["fit", str(root / "cap"), "--model", "ggx",
+                     "--out", str(root / "maps"), "--solver", "gn", "--normals",
                      "-q"]) == 0
     return root
 
@@ -314,6 +315,7 @@ def test_fit_report_rows_say_over_which_texels(fitted):
     assert not re.search(r"\d\.\d{5,}", md), md
     settings = json.loads((maps / "settings.json").read_text())
     assert settings["flags"]["solver"] == "gn" and settings["resolved"]["fit_options"] == {"solver": "gn",
+                                                                                           "model": "ggx",
                                                                                            "normals": True}
     assert "method" not in settings["flags"]
 

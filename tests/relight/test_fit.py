@@ -42,7 +42,7 @@ def test_noise_free_recovery(scene):
     rho, f0, alpha = _truth(surface.num_samples)
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
     # Tight tolerances (the defaults stop at the noise floor of real data).
-    f = fit(cap, surface, options=FitOptions(rtol=1e-6, atol=1e-7))
+    f = fit(cap, surface, model="ggx", loss="cauchy", options=FitOptions(rtol=1e-6, atol=1e-7))
     assert not np.any(np.asarray(f.failed))
     # The model is the simulator's: recovery is limited by float32 and the solver tolerance.
     np.testing.assert_allclose(np.asarray(f.rho_d), np.asarray(rho), rtol=2e-3)
@@ -57,7 +57,7 @@ def test_one_percent_noise(scene):
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
     noise = 1 + 0.01 * np.random.default_rng(2).standard_normal(cap.radiance.shape)
     cap = stage.Capture(cap.radiance * jnp.asarray(noise, jnp.float32), cap.mask, cap.rig, cap.cameras)
-    f = fit(cap, surface)
+    f = fit(cap, surface, model="ggx", loss="cauchy")
     err_rho = np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho)
     err_alpha = np.abs(np.asarray(f.alpha[:, :1]) - np.asarray(alpha)) / np.asarray(alpha)
     # ~60 lit lights x 1% noise: the albedo is averaged down well below 1%; roughness is
@@ -75,7 +75,7 @@ def test_no_nan_when_a_sample_has_no_data(scene):
     rad = np.asarray(cap.radiance).copy()
     rad[:, :, 1] = 0.0  # sample 1: black (albedo 0 is at the bound)
     cap = stage.Capture(jnp.asarray(rad), jnp.asarray(mask), cap.rig, cap.cameras)
-    f = fit(cap, surface)
+    f = fit(cap, surface, model="ggx", loss="cauchy")
     for leaf in (f.rho_d, f.f0, f.alpha, f.residual):
         assert np.all(np.isfinite(np.asarray(leaf)))
     assert bool(f.failed[0])
@@ -87,7 +87,7 @@ def test_mismatched_capture_is_refused(scene):
     rho, f0, alpha = _truth(surface.num_samples)
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
     with pytest.raises(ValueError, match="samples"):
-        fit(cap, surface.subset(np.arange(3)))
+        fit(cap, surface.subset(np.arange(3)), model="ggx", loss="cauchy")
 
 
 def _noisy(cap, sigma, seed):
@@ -113,7 +113,7 @@ def test_normals_recovered_from_a_tilted_start(scene):
     truth_surface = _tilted(surface, 8.0, seed=4)
     rho, f0, alpha = _truth(surface.num_samples, seed=5)
     cap = stage.simulate(truth_surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
-    f = fit(cap, surface, normals=True)
+    f = fit(cap, surface, model="ggx", loss="cauchy", normals=True)
     cos = np.sum(np.asarray(f.normal) * np.asarray(truth_surface.normal), 1)
     err_deg = np.rad2deg(np.arccos(np.clip(cos, -1, 1)))
     # Noise-free, the model is the simulator's: the normal is exact up to the
@@ -137,7 +137,7 @@ def test_cauchy_loss_ignores_unmasked_shadows(scene):
     bad = stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
     err = {}
     for loss in ("l2", "cauchy"):
-        f = fit(bad, surface, loss=loss)
+        f = fit(bad, surface, model="ggx", loss=loss)
         err[loss] = np.median(np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho))
     # Plain L2 is dragged by the ~15% zeros (albedo biased low by ~that); Cauchy
     # weights them out (the measurement: 15% vs 0.8%).
@@ -226,7 +226,7 @@ def test_every_solver_is_safe(scene, solver):
     surface, rig, cam, lv, cv = scene
     rho, f0, alpha = _truth(surface.num_samples, seed=10)
     cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 11)
-    f = fit(cap, surface, solver=solver, options=FitOptions(rounds=2))
+    f = fit(cap, surface, model="ggx", loss="cauchy", solver=solver, options=FitOptions(rounds=2))
     for leaf in jax.tree_util.tree_leaves(f):
         assert np.all(np.isfinite(np.asarray(leaf)))
     # Whatever the solver, a sample either succeeds or keeps a safe start: the
@@ -247,7 +247,7 @@ def test_sharp_lobe_is_reported_unresolved(scene):
     rho, f0, _ = _truth(surface.num_samples, seed=12)
     alpha = jnp.full((surface.num_samples, 1), 0.02)  # mirror-like, far below the dome's ~17 degree spacing
     cap = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0 * 5, alpha), lv, cv)
-    f = fit(cap, surface)
+    f = fit(cap, surface, model="ggx", loss="cauchy")
     assert f.alpha_floor > 0.1
     assert np.all(np.asarray(f.alpha) >= f.alpha_floor * 0.999)
     # Where a light falls near the mirror direction the lobe is seen and pinned at
@@ -262,7 +262,7 @@ def test_uncertainty_matches_the_scatter_over_noise_draws(scene):
     surface, rig, cam, lv, cv = scene
     rho, f0, alpha = _truth(surface.num_samples, seed=13)
     clean = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
-    draws = [fit(_noisy(clean, 0.02, 100 + k), surface, loss="l2") for k in range(6)]
+    draws = [fit(_noisy(clean, 0.02, 100 + k), surface, model="ggx", loss="l2") for k in range(6)]
     est = np.stack([np.asarray(d.rho_d) for d in draws])
     scatter = est.std(axis=0, ddof=1).mean()
     sigma = np.mean([np.asarray(d.uncertainty)[:, :3].mean() for d in draws])
@@ -291,17 +291,20 @@ def test_solver_object_is_the_named_solver(scene):
     cap, sub = _small(scene, seed=14)
     n = sub.num_samples
     calls = []
-    ref = fit(cap, sub, options=FitOptions(progress=lambda *a: calls.append(a)))
+    ref = fit(cap, sub, model="ggx", loss="cauchy", options=FitOptions(progress=lambda *a: calls.append(a)))
     assert ref.solver == "lm"
     assert calls[0] == ("fit ggx", 0, n) and calls[-1] == ("fit ggx", n, n)
     assert all(b[1] >= a[1] for a, b in zip(calls, calls[1:], strict=False))
-    same = fit(cap, sub, solver=relight.fitting.NormalLevenbergMarquardt(rtol=1e-5, atol=1e-6))
+    same = fit(cap, sub, model="ggx", loss="cauchy",
+               solver=relight.fitting.NormalLevenbergMarquardt(rtol=1e-5, atol=1e-6))
     assert same.solver == "NormalLevenbergMarquardt(rtol=1e-05, atol=1e-06)"
     for k in ("rho_d", "rho_s", "alpha", "normal", "steps", "result"):
         np.testing.assert_array_equal(np.asarray(getattr(same, k)), np.asarray(getattr(ref, k)))
-    optx_lm = fit(cap, sub, solver="optx-lm")
-    same = fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6, linear_solver=lx.Normal(lx.Cholesky())))
-    qr = fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6))
+    optx_lm = fit(cap, sub, model="ggx", loss="cauchy",
+                  solver="optx-lm")
+    same = fit(cap, sub, model="ggx", loss="cauchy",
+               solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6, linear_solver=lx.Normal(lx.Cholesky())))
+    qr = fit(cap, sub, model="ggx", loss="cauchy", solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6))
     assert qr.solver == "LevenbergMarquardt(rtol=1e-05, atol=1e-06)"
     for k in ("rho_d", "rho_s", "alpha", "normal", "steps", "result"):
         np.testing.assert_array_equal(np.asarray(getattr(same, k)), np.asarray(getattr(optx_lm, k)))
@@ -326,17 +329,20 @@ def test_solver_object_is_the_named_solver(scene):
 def test_bad_solver_or_progress_is_refused(scene):
     cap, sub = _small(scene, seed=16)
     with pytest.raises(ValueError, match="solver must be one of"):
-        fit(cap, sub, solver="newton")
+        fit(cap, sub, model="ggx", loss="cauchy",
+            solver="newton")
     with pytest.raises(TypeError, match="solver must be one of .* Optimistix solver object"):
-        fit(cap, sub, solver=optx.Newton(rtol=1e-5, atol=1e-6))  # a root finder, not a least-squares solver
+        fit(cap, sub, model="ggx", loss="cauchy",
+            solver=optx.Newton(rtol=1e-5, atol=1e-6))  # a root finder, not a least-squares solver
     with pytest.raises(TypeError, match="solver"):
-        fit(cap, sub, solver=lambda u: u)
+        fit(cap, sub, model="ggx", loss="cauchy", solver=lambda u: u)
     with pytest.raises(ValueError, match="rtol / atol"):
-        fit(cap, sub, solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6), options=FitOptions(rtol=1e-3))
+        fit(cap, sub, model="ggx", loss="cauchy",
+            solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6), options=FitOptions(rtol=1e-3))
     with pytest.raises(TypeError, match="progress"):
-        fit(cap, sub, options=FitOptions(progress=3))
+        fit(cap, sub, model="ggx", loss="cauchy", options=FitOptions(progress=3))
     with pytest.raises(TypeError, match="options"):
-        fit(cap, sub, options=dict(chunk=8))
+        fit(cap, sub, model="ggx", loss="cauchy", options=dict(chunk=8))
 
 
 def test_a_sample_without_data_is_reported_unknown_not_certain(scene):
@@ -345,7 +351,7 @@ def test_a_sample_without_data_is_reported_unknown_not_certain(scene):
     cap, sub = _small(scene, seed=18)
     mask = np.array(cap.mask)
     mask[:, :, 0] = False
-    f = fit(stage.Capture(cap.radiance, jnp.asarray(mask), cap.rig, cap.cameras), sub)
+    f = fit(stage.Capture(cap.radiance, jnp.asarray(mask), cap.rig, cap.cameras), sub, model="ggx", loss="cauchy")
     unc = np.asarray(f.uncertainty)
     fitted = np.asarray(relight.fitting._ladder._union_index(relight.fitting._model.Layout(relight.MODELS.index("ggx"),
                                                                                           False, f.alpha_floor)))

@@ -32,7 +32,8 @@ def test_albedo_traded_for_a_lobe_is_flagged_ambiguous():
     peak = np.percentile(x[np.asarray(cap.mask)], 99.9)
     photons = 100  # at the brightest observation: shot noise 10% there, more in the dark
     noisy = rng.poisson(x / peak * photons) / photons * peak
-    f = relight.fit(stage.Capture(jnp.asarray(noisy, jnp.float32), cap.mask, cap.rig, cap.cameras), surface)
+    f = relight.fit(stage.Capture(jnp.asarray(noisy, jnp.float32), cap.mask, cap.rig, cap.cameras), surface,
+                    model="ggx", loss="cauchy")
     ratio = np.asarray(f.rho_d) / np.asarray(rho)
     dark = np.any(ratio < 0.8, axis=1)
     amb = np.asarray(f.ambiguous)

@@ -21,7 +21,7 @@ def capture(tmp_path_factory):
         cap, ref = root / "cap", root / "ref"
         assert main(["simulate", "--rig", "dome:42", "--resolution", "16", "--image-size", "32", "--out", str(cap),
                      "--quiet"]) == 0
-        assert main(["fit", str(cap), "--out", str(ref), "--quiet", "--no-index"]) == 0
+        assert main(["fit", str(cap), "--model", "ggx", "--out", str(ref), "--quiet", "--no-index"]) == 0
     return cap, ref
 
 
@@ -31,7 +31,7 @@ def test_fit_folder_writes_what_relight_fit_writes(capture, tmp_path):
     out.mkdir()
     calls = []
     options = FitOptions(block=4096, progress=lambda *a: calls.append(a))
-    r = fit_folder(cap, out, parts=tmp_path / "parts", options=options, envmap=bundled_envmap_path())
+    r = fit_folder(cap, out, model="ggx", parts=tmp_path / "parts", options=options, envmap=bundled_envmap_path())
     assert isinstance(r, FitFolderResult) and r.kind == "texel" and r.streamed and r.subsurface is None
     assert r.parts["blocks"] == 1 and r.parts["resumed_blocks"] == 0 and r.scene == out / "scene.xml"
     assert {"read_s", "fit_s", "write_s"} <= set(r.report["timings_s"])
@@ -50,12 +50,12 @@ def test_fit_folder_resumes_its_parts(capture, tmp_path):
     cap, _ = capture
     out = tmp_path / "set"
     out.mkdir()
-    fit_folder(cap, out, parts=tmp_path / "parts", options=FitOptions(block=64))
-    r = fit_folder(cap, out, parts=tmp_path / "parts", resume=True, options=FitOptions(block=64))
+    fit_folder(cap, out, model="ggx", parts=tmp_path / "parts", options=FitOptions(block=64))
+    r = fit_folder(cap, out, model="ggx", parts=tmp_path / "parts", resume=True, options=FitOptions(block=64))
     assert r.parts["fitted_blocks"] == 0 and r.parts["resumed_blocks"] == r.parts["blocks"] == 2
 
 
 def test_subsurface_settings_need_the_subsurface_step(capture, tmp_path):
     cap, _ = capture
     with pytest.raises(ValueError, match="subsurface only"):
-        fit_folder(cap, tmp_path, parts=tmp_path / "parts", eta=1.3)
+        fit_folder(cap, tmp_path, model="ggx", parts=tmp_path / "parts", eta=1.3)

@@ -48,7 +48,7 @@ def one_pass(scene):
     subsurface search is most of their time); test_alternation_keeps_a_right_answer_right starts its second pass
     from the same BRDF fit (``first``), which fit_with_subsurface would otherwise make again."""
     surface, *_, cap, _ = scene
-    f = relight.fit(cap, surface, model=KW["model"], normals=KW["normals"])
+    f = relight.fit(cap, surface, model=KW["model"], normals=KW["normals"], loss=relight.fitting.SUBSURFACE_LOSS)
     return f, relight.fit_with_subsurface(cap, surface, passes=1, first=f, **KW)
 
 

@@ -45,7 +45,7 @@ def scene():
 @pytest.fixture(scope="module")
 def reference(scene):
     cap, surface = scene
-    return fit(cap, surface, options=dataclasses.replace(FAST, block=BLOCK))
+    return fit(cap, surface, model="ggx", loss="cauchy", options=dataclasses.replace(FAST, block=BLOCK))
 
 
 def _assert_same(a, b, atol=0.0):
@@ -75,7 +75,7 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
     n_blocks = -(-P // BLOCK)
     assert n_blocks >= 3
 
-    whole = fit_parts(cap, surface, tmp_path / "whole", block=BLOCK, options=FAST)
+    whole = fit_parts(cap, surface, tmp_path / "whole", model="ggx", loss="cauchy", block=BLOCK, options=FAST)
     assert sorted(p.name for p in whole.glob("part_*.npz")) == sorted(
         f"part_{s}_{min(s + BLOCK, P)}.npz" for s in range(0, P, BLOCK))
     _assert_same(merge_parts(whole, surface), reference)
@@ -84,18 +84,19 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
         raise _Killed(start)
 
     with pytest.raises(_Killed):
-        fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=kill, options=FAST)
+        fit_parts(cap, surface, tmp_path / "cut", model="ggx", loss="cauchy", block=BLOCK, on_block=kill, options=FAST)
     assert [p.name for p in (tmp_path / "cut").glob("part_*.npz")] == [f"part_0_{BLOCK}.npz"]
     with pytest.raises(PartsIncompleteError, match=f"{n_blocks - 1} of {n_blocks} blocks"):
         merge_parts(tmp_path / "cut", surface)
     done = []
-    fit_parts(cap, surface, tmp_path / "cut", block=BLOCK, on_block=lambda s, e, a: done.append((s, e)), options=FAST)
+    fit_parts(cap, surface, tmp_path / "cut", model="ggx", loss="cauchy",
+              block=BLOCK, on_block=lambda s, e, a: done.append((s, e)), options=FAST)
     assert [s for s, _ in done] == list(range(BLOCK, P, BLOCK))
     _assert_same(merge_parts(tmp_path / "cut", surface), reference)
 
     # A finished set: no block fitted, no progress reported.
     calls = []
-    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda *a: calls.append(a),
+    fit_parts(cap, surface, whole, model="ggx", loss="cauchy", block=BLOCK, on_block=lambda *a: calls.append(a),
               options=dataclasses.replace(FAST, progress=lambda *a: calls.append(a)))
     assert calls == []
 
@@ -103,7 +104,8 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
     (whole / f"part_{BLOCK}_{2 * BLOCK}.npz").unlink()
     with pytest.raises(PartsIncompleteError, match=f"{BLOCK}..{2 * BLOCK}"):
         merge_parts(whole, surface)
-    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
+    fit_parts(cap, surface, whole, model="ggx", loss="cauchy",
+              block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
     assert calls == [(BLOCK, 2 * BLOCK)]
     _assert_same(merge_parts(whole, surface), reference)
 
@@ -113,7 +115,8 @@ def test_resumed_equals_uninterrupted_equals_fit(scene, reference, tmp_path):
     with pytest.raises(PartsFingerprintError, match="unreadable"):
         merge_parts(whole, surface)
     calls.clear()
-    fit_parts(cap, surface, whole, block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
+    fit_parts(cap, surface, whole, model="ggx", loss="cauchy",
+              block=BLOCK, on_block=lambda s, e, a: calls.append((s, e)), options=FAST)
     assert calls == [((n_blocks - 1) * BLOCK, P)]
     _assert_same(merge_parts(whole, surface), reference)
 
@@ -125,22 +128,23 @@ def test_another_fit_is_refused(scene, tmp_path):
     cap, surface = scene
     P = surface.num_samples
     block = P  # one block: the cheapest set
-    a = fit_parts(cap, surface, tmp_path / "a", block=block, options=FAST)
+    a = fit_parts(cap, surface, tmp_path / "a", model="ggx", loss="cauchy", block=block, options=FAST)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(cap, surface, a, block=block, options=FAST, cauchy=0.2)
+        fit_parts(cap, surface, a, model="ggx", loss="cauchy", block=block, options=FAST, cauchy=0.2)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(cap, surface, a, block=block - 1, options=FAST)
+        fit_parts(cap, surface, a, model="ggx", loss="cauchy", block=block - 1, options=FAST)
     rad = np.asarray(cap.radiance).copy()
     rad[0, 3, P - 1, 1] *= 1.0 + 1e-6  # one value of the last sample, changed by one part in a million
     other = stage.Capture(jnp.asarray(rad), cap.mask, cap.rig, cap.cameras)
     with pytest.raises(PartsFingerprintError, match="another fit"):
-        fit_parts(other, surface, a, block=block, options=FAST)
+        fit_parts(other, surface, a, model="ggx", loss="cauchy", block=block, options=FAST)
     # The same settings: accepted, nothing refitted.
     calls = []
-    fit_parts(cap, surface, a, block=block, on_block=lambda *x: calls.append(x), options=FAST)
+    fit_parts(cap, surface, a, model="ggx", loss="cauchy",
+              block=block, on_block=lambda *x: calls.append(x), options=FAST)
     assert calls == []
 
-    b = fit_parts(other, surface, tmp_path / "b", block=block, options=FAST)
+    b = fit_parts(other, surface, tmp_path / "b", model="ggx", loss="cauchy", block=block, options=FAST)
     part = f"part_0_{P}.npz"
     (a / part).write_bytes((b / part).read_bytes())  # b's part under a's manifest
     with pytest.raises(PartsFingerprintError, match=part):
@@ -152,10 +156,11 @@ def test_another_fit_is_refused(scene, tmp_path):
     with pytest.raises(PartsFingerprintError, match="another surface"):
         merge_parts(b, moved)
     with pytest.raises(ValueError, match="process_index"):
-        fit_parts(cap, surface, a, block=block, process_index=2, process_count=2, options=FAST)
+        fit_parts(cap, surface, a, model="ggx", loss="cauchy",
+                  block=block, process_index=2, process_count=2, options=FAST)
 
     # overwrite=True: a's set replaced by other's, and it merges to other's set.
-    fit_parts(other, surface, a, block=block, overwrite=True, options=FAST)
+    fit_parts(other, surface, a, model="ggx", loss="cauchy", block=block, overwrite=True, options=FAST)
     _assert_same(merge_parts(a, surface), merge_parts(b, surface))
 
 
@@ -171,7 +176,8 @@ _WORKER = textwrap.dedent("""
     assert (jax.process_index(), jax.process_count()) == ({pid}, 2)
     cap, surface = _scene()
     done = []
-    fit_parts(cap, surface, {folder!r}, block=BLOCK, on_block=lambda s, e, a: done.append(s), options=FAST)
+    fit_parts(cap, surface, {folder!r}, model="ggx", loss="cauchy",
+              block=BLOCK, on_block=lambda s, e, a: done.append(s), options=FAST)
     print("BLOCKS", {pid}, done)
     jax.distributed.shutdown()
 """)

@@ -98,7 +98,7 @@ def test_subsurface_texel_data_of_a_subset_are_those_rows():
         np.asarray(surface.position), np.asarray(surface.area), 5.0, dtype=jnp.float64
     )
     cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, skin_bssrdf.SKIN_ETA))
-    fitted = relight.fit(cap, surface)
+    fitted = relight.fit(cap, surface, model="ggx", loss="cauchy")
     whole = subsurface_texel_data(cap, surface, fitted, op)
     texels = np.array([P - 1, 0, P // 2])
     part = subsurface_texel_data(cap, surface, fitted, op, texels)

@@ -79,7 +79,7 @@ def test_intensity_one_rig_recovers_albedo(scene):
     rho, f0, alpha = _truth(surface.num_samples, seed=0)
     cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 1)
     assert float(np.max(np.asarray(cap.radiance))) < 1e-5
-    f = relight.fit(cap, surface, alpha_floor=FLOOR)
+    f = relight.fit(cap, surface, model="ggx", loss="cauchy", alpha_floor=FLOOR)
     err = np.abs(np.asarray(f.rho_d) - np.asarray(rho)) / np.asarray(rho)
     assert np.median(err) < 0.01
     assert np.median(np.asarray(f.steps)) > 3
@@ -98,7 +98,7 @@ def units_ref(scene):
     surface, rig, cam, lv, cv = scene
     rho, f0, alpha = _truth(surface.num_samples, seed=2)
     cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 3)
-    return cap, relight.fit(cap, surface, normals=True, alpha_floor=FLOOR)
+    return cap, relight.fit(cap, surface, model="ggx", loss="cauchy", normals=True, alpha_floor=FLOOR)
 
 
 @pytest.mark.parametrize("k", [1e-6, 1e6])
@@ -112,7 +112,8 @@ def test_other_units_give_the_same_maps(scene, units_ref, k):
     (capture units); the uncertainties do not (parameter units)."""
     surface, rig = scene[:2]
     cap, ref = units_ref
-    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, normals=True, alpha_floor=FLOOR)
+    other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, model="ggx", loss="cauchy",
+                                                   normals=True, alpha_floor=FLOOR)
     for name in ("rho_d", "rho_s", "alpha", "normal", "uncertainty"):
         np.testing.assert_allclose(np.asarray(getattr(other, name)), np.asarray(getattr(ref, name)),
                                    rtol=1e-4, atol=1e-7, err_msg=name)
@@ -176,8 +177,8 @@ def test_other_units_in_float32(scene):
     cap = _noisy(stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv), 0.01, 8)
     k = 1e6
     with jax.enable_x64(False):
-        ref = relight.fit(cap, surface, normals=True)
-        other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, normals=True)
+        ref = relight.fit(cap, surface, model="ggx", loss="cauchy", normals=True)
+        other = relight.fit(_scaled(cap, k, _rig_times(rig, k)), surface, model="ggx", loss="cauchy", normals=True)
     assert ref.rho_d.dtype == jnp.float32
     np.testing.assert_array_equal(np.asarray(other.failed), np.asarray(ref.failed))
     assert np.mean(np.asarray(ref.failed)) < 0.05

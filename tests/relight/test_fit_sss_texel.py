@@ -50,7 +50,7 @@ def _scene(sphere, truth, seed):
     cap = stage.simulate(surface, rig, [cam], spec, lv, cv, subsurface=stage.Subsurface(prof, op, skin_bssrdf.SKIN_ETA))
     eps = 1 + 0.01 * np.random.default_rng(seed).standard_normal(cap.radiance.shape)
     cap = stage.Capture(cap.radiance * jnp.asarray(eps, cap.radiance.dtype), cap.mask, cap.rig, cap.cameras)
-    return cap, relight.fit(cap, surface), np.asarray(A)
+    return cap, relight.fit(cap, surface, model="ggx", loss="cauchy"), np.asarray(A)
 
 
 def _areas(surface):

@@ -132,11 +132,11 @@ def test_bad_block_and_sources_are_refused(scene):
         with pytest.raises(ValueError, match="block"):
             FitOptions(block=bad)
     with pytest.raises(ValueError, match="devices"):
-        fit(cap, surface, options=FitOptions(devices=0))
+        fit(cap, surface, model="ggx", loss="cauchy", options=FitOptions(devices=0))
     with pytest.raises(TypeError, match="on_block"):
         FitOptions(on_block=3)
     with pytest.raises(TypeError, match="capture"):
-        fit(np.zeros((1, 42, surface.num_samples, 3)), surface)
+        fit(np.zeros((1, 42, surface.num_samples, 3)), surface, model="ggx", loss="cauchy")
 
 
 def _traced_peak(capture, surface, block, **kw):

@@ -160,11 +160,12 @@ def test_cli_fit_of_a_photo_capture(scene, tmp_path, capsys):
     from relight.io import read_png
 
     _, _, _, _, masked, _ = scene
-    assert main(["fit", str(masked), "--out", str(tmp_path / "none"), "--quiet"]) != 0
+    assert main(["fit", str(masked), "--model", "ggx", "--out", str(tmp_path / "none"), "--quiet"]) != 0
     assert "--mesh" in capsys.readouterr().err
     out = tmp_path / "maps"
     # No index page (the viewer's tests cover it; nothing here reads it).
-    assert main(["fit", str(masked), "--mesh", "head", "--resolution", "16", "--out", str(out), "--quiet",
+    assert main(["fit", str(masked), "--model", "ggx",
+                 "--mesh", "head", "--resolution", "16", "--out", str(out), "--quiet",
                  "--no-index"]) == 0
     _, surface, report = photos_to_texels(read_photo_capture(masked), stage.load_head(), 16)
     doc = json.loads((out / "report.json").read_text())

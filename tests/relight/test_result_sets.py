@@ -251,8 +251,9 @@ def test_foreign_folders_are_refused(tmp_path, capsys):
         (tmp / "relit.exr").write_bytes(b"")
     for argv, folder, what in (
             (["render", str(tmp_path / "nowhere"), "--out", str(cap)], cap, "capture folder"),
-            (["fit", str(tmp_path / "nowhere"), "--out", str(cap)], cap, "capture folder"),
-            (["fit", str(tmp_path / "nowhere"), "--out", str(tmp_path / "r")], tmp_path / "r", "relight render")):
+            (["fit", str(tmp_path / "nowhere"), "--model", "ggx", "--out", str(cap)], cap, "capture folder"),
+            (["fit", str(tmp_path / "nowhere"), "--model", "ggx",
+              "--out", str(tmp_path / "r")], tmp_path / "r", "relight render")):
         if argv[0] == "render":
             argv = ["render", str(tmp_path / "r2src"), *argv[2:]]
             (tmp_path / "r2src").mkdir(exist_ok=True)
@@ -363,7 +364,7 @@ def dome12(tmp_path_factory):
 
 def test_fit_of_a_12_light_dome_completes(dome12, capsys):
     out = dome12 / "maps"
-    assert main(["fit", str(dome12 / "cap"), "--out", str(out), "--quiet"]) == 0
+    assert main(["fit", str(dome12 / "cap"), "--model", "ggx", "--out", str(out), "--quiet"]) == 0
     assert "100% of the texels are flagged" in capsys.readouterr().err
     report = json.loads((out / "report.json").read_text())
     assert report["failed_fraction"] == 1.0 and report["against_truth"] is None

@@ -33,7 +33,8 @@ def fitted(tmp_path_factory):
                  "--image-size", str(SIZE), "--out", str(photos), "--quiet", "--no-index"]) == 0
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        assert main(["fit", str(photos), "--mesh", "head", "--resolution", str(RES), "--out", str(maps),
+        assert main(["fit", str(photos), "--model", "ggx",
+                     "--mesh", "head", "--resolution", str(RES), "--out", str(maps),
                      "--quiet", "--no-index"]) == 0
     mesh = stage.load_head()
     _, surface, report = photos_to_texels(read_photo_capture(photos), mesh, RES)

@@ -34,7 +34,7 @@ def outputs(tmp_path_factory, demo_output):
     root = tmp_path_factory.mktemp("view")
     assert main(["simulate", "--rig", "dome:42", "--resolution", str(RES), "--image-size", str(SIZE),
                  "--out", str(root / "cap"), "-qq"]) == 0
-    assert main(["fit", str(root / "cap"), "--out", str(root / "maps"), "--solver", "gn", "-qq"]) == 0
+    assert main(["fit", str(root / "cap"), "--model", "ggx", "--out", str(root / "maps"), "--solver", "gn", "-qq"]) == 0
     assert main(["render", str(root / "maps"), "--out", str(root / "rend"), "-qq"]) == 0
     assert main(["render", str(root / "cap"), "--out", str(root / "turn"), "--frames", "4", "-qq"]) == 0
     shutil.copytree(demo_output, root / "demo")  # a copy: the shared run's folder stays as the demo wrote it

@@ -14,8 +14,9 @@ from ..scenes import uv_sphere
 
 RES = 16
 # simulate_into and stage.simulate run the same kernels on differently shaped chunks (padded blocks of 16
-# lights against every sample and 64 lights), so XLA may round the last bit differently: 2 float32 ulps.
-RTOL, ATOL = 2.5e-7, 1e-7
+# lights against every sample and 64 lights), so XLA may round the last bit differently: 2 float32 ulps on one
+# machine, up to 1.4e-6 relative (12 ulps) on another of the same kind whose CPU vectorises the sums differently.
+RTOL, ATOL = 2e-6, 1e-7
 SENSOR = stage.Sensor(exposure=300.0, read_noise=2.0, shot_noise=True)
 
 
