@@ -53,7 +53,7 @@ def test_demo_end_to_end(demo_output):
     the same renderer. Bars (a 32^2 grid: 9 mm texels, where the mean free path
     is barely identifiable; the full-size numbers are in docs/RESULTS.md):
     albedo median within 5%, normals within 2 degrees, relit PSNR above 20 dB
-    (43.5 dB at the default 96^2 and 3 cameras, docs/RESULTS.md), < 5%
+    (43.7 dB at the default 96^2 and 3 cameras, docs/RESULTS.md), < 5%
     flagged, every number finite, every output written."""
     out = demo_output
     report = json.loads((out / "report.json").read_text())
