@@ -93,7 +93,7 @@ def _everywhere(out: Fit, labels: np.ndarray, rho_fill) -> Fit:
 # The BRDF fits' loss when subsurface is fitted too (unless fit_options say otherwise). Before the subsurface is
 # modelled, the local model meets light that diffused across shadow terminators and texel boundaries: heavy-tailed
 # model error that L2 (relight.fit's default) fits as data. Measured on the demo's 32^2 head (tests/relight/
-# test_cli.py::test_demo_end_to_end): median albedo error 3.7% with the Cauchy loss, 9.9% with L2 (docs/fit.md,
+# test_cli.py::test_demo_end_to_end): median albedo error 3.0% with the Cauchy loss, 9.9% with L2 (docs/fit.md,
 # "Defaults").
 SUBSURFACE_LOSS = "cauchy"
 
