@@ -289,7 +289,7 @@ def _fit_block(plan: _Plan, surface: stage.Surface, b0: int, b1: int, phases: _P
         train = w - hmask
         trial = {k: _fit_rung(data, train, hmask, every, lay(k), None, opts,
                               phases(f"fit {MODELS[k]} (held out)", P)) for k in rungs}
-        choice, heldout = choose_rungs(trial, rungs, hmask, np.sum(train[..., 0] > 0, axis=1), dt)
+        choice, heldout = choose_rungs(trial, rungs, hmask, np.sum(train[..., 0] > 0, axis=1), dt, plan.normals)
         fits = {}
         for k in rungs:
             sel = np.nonzero(choice == k)[0]

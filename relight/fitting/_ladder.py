@@ -3,8 +3,8 @@ per-sample result assembled from the rungs' solves.
 
 ``model="auto"``: every rung is fitted on all but every ``holdout``-th of each sample's observations (ranked
 from its mirror direction outward) and scored on those; each sample keeps the simplest rung (the fewest
-parameters) whose held-out and training mean squared errors are within two standard errors of the best
-(:func:`choose_rungs`), then is refitted on every light; a sample
+parameters) whose prediction error, the held-out and the training estimates pooled, is within two standard
+errors of the best (:func:`choose_rungs`), then is refitted on every light; a sample
 whose refitted lobe is an extrapolated highlight (:mod:`relight.fitting._extrapolation`) goes one rung down.
 """
 
@@ -70,36 +70,40 @@ def heldout_weights(w, cos_h, holdout: int):
     return held[..., None].astype(w.dtype) * w
 
 
-def choose_rungs(trial: dict, rungs, hmask, n_train, dt):
+def choose_rungs(trial: dict, rungs, hmask, n_train, dt, normals: bool = False):
     """Each sample's rung from the held-out trials: (choice [n] int32, held-out RMS [n]).
 
     ``trial[k]``: rung k's solve on the training observations (``hmse`` [n], its held-out MSE; ``rms``
     [n], its training RMS); ``hmask``: :func:`heldout_weights`; ``n_train`` [n]: each sample's training
-    observations. The mean of n squared Gaussian residuals of variance s^2 has a standard error of
-    s^2 sqrt(2 / n). A rung is kept when two tests pass:
+    observations; ``normals``: whether the rungs fit normals (two more parameters each).
 
-    - held out: its held-out MSE is within two standard errors of the best rung's, with s^2 the richest
-      rung's training MSE (the smallest) and n the held-out count;
-    - training: its training MSE is within two standard errors (n the training count) of the lowest
-      training MSE among the rungs that pass the held-out test. A highlight that covers one or two of a
-      sample's observations is rarely held out; a rung without the lobe then predicts the held-out
-      observations as well, but leaves the highlight in its training residual.
+    Each rung's prediction error is estimated twice and the two are pooled, weighted by their counts:
+    the held-out MSE over the n_h held-out observations (unbiased), and the training MSE over the n_t
+    training observations corrected for the p parameters fitted to them, Akaike's final prediction error
+    MSE (n_t + p) / (n_t - p) (Akaike 1970, "Statistical predictor identification", Ann. Inst. Stat. Math.
+    22). A rung is kept when its pooled estimate is within two standard errors of the best rung's: the
+    mean of n squared Gaussian residuals of variance s^2 has a standard error of s^2 sqrt(2 / n), with s^2
+    the smallest training MSE and n = n_h + n_t. Of the kept rungs, the simplest: the fewest parameters;
+    of Blinn-Phong and GGX, which have as many, the lower pooled estimate.
 
-    Of the kept rungs, the simplest: the fewest parameters; of Blinn-Phong and GGX, which have as many,
-    the lower held-out MSE (docs/fit.md, "How", item 8).
+    Why pooled (docs/fit.md, "How", item 8): a highlight that covers one or two of a sample's observations
+    is rarely held out, so a rung without the lobe can predict the held-out observations as well as, or
+    better than, the rung that fits the highlight, while it leaves the highlight in its training residual;
+    and a rung that fits shadows or noise in training pays for it on the held-out observations.
     """
-    hm = np.stack([trial[k]["hmse"] for k in rungs])  # [K, n]
-    tr = np.stack([trial[k]["rms"] ** 2 for k in rungs])  # [K, n]
-    n_h = np.maximum(np.sum(hmask[..., 0], axis=1), 1.0)
+    hm = np.stack([trial[k]["hmse"] for k in rungs]).astype(np.float64)  # [K, n]
+    tr = np.stack([trial[k]["rms"] ** 2 for k in rungs]).astype(np.float64)  # [K, n]
+    n_h = np.maximum(np.sum(hmask[..., 0] > 0, axis=1), 1.0)
+    n_t = np.maximum(np.asarray(n_train, np.float64), 1.0)
+    size = np.asarray([Layout(k, normals, 0.5).size for k in rungs], np.float64)[:, None]
+    fpe = tr * (n_t + size) / np.maximum(n_t - size, 1.0)
+    pooled = (n_h * hm + n_t * fpe) / (n_h + n_t)
     s2 = np.min(tr, axis=0)
-    ok = hm <= (np.min(hm, axis=0) + 2.0 * s2 * np.sqrt(2.0 / n_h))[None]
-    t_best = np.min(np.where(ok, tr, np.inf), axis=0)
-    ok &= tr <= (t_best * (1.0 + 2.0 * np.sqrt(2.0 / np.maximum(n_train, 1.0))))[None]
+    ok = pooled <= (np.min(pooled, axis=0) + 2.0 * s2 * np.sqrt(2.0 / (n_h + n_t)))[None]
     # Simplest = fewest parameters. Blinn-Phong and GGX have as many (an albedo and a roughness), so neither is
-    # simpler: between them the held-out error decides.
-    size = np.asarray([Layout(k, False, 0.5).size for k in rungs])[:, None]
-    fewest = ok & (size == np.min(np.where(ok, size, np.iinfo(np.int32).max), axis=0))
-    pick = np.argmin(np.where(fewest, hm, np.inf), axis=0)
+    # simpler: between them the pooled estimate decides.
+    fewest = ok & (size == np.min(np.where(ok, size, np.inf), axis=0))
+    pick = np.argmin(np.where(fewest, pooled, np.inf), axis=0)
     choice = np.asarray(rungs, np.int32)[pick]
     heldout = np.sqrt(hm[pick, np.arange(hm.shape[1])]).astype(dt)
     return choice, heldout

@@ -207,6 +207,36 @@ def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
     assert np.all(np.asarray(g.heldout)[was_ggx] != np.asarray(f.heldout)[was_ggx])
 
 
+def test_auto_keeps_a_highlight_that_one_light_sees(scene):
+    """A sharp GGX lobe (alpha 0.06: half its peak within 2 degrees of the half vector) under 162 lights
+    17 degrees apart, 1% noise: the highlight covers one or two of a sample's lights, so the held-out
+    observations rarely include it. ``model="auto"`` (the pooled prediction error, docs/fit.md, "How",
+    item 8) must keep a lobe that reproduces it: at each such sample's brightest observation the fitted
+    model's noise-free radiance is within 10% of the truth's, on at least 90% of those samples, and none
+    goes to Lambert. (The rule before, separate held-out and training tests, kept Lambert or a lobe that
+    misses the peak on MERL's acrylics: docs/measured_brdf.md.)"""
+    surface, rig, cam, lv, cv = scene
+    P = surface.num_samples
+    rho, _, _ = _truth(P, seed=12)
+    f0, alpha = jnp.full((P, 1), 0.3, jnp.float32), jnp.full((P, 1), 0.06, jnp.float32)
+    true = stage.simulate(surface, rig, [cam], brdf.lambert_ggx(rho, f0, alpha), lv, cv)
+    diffuse = stage.simulate(surface, rig, [cam], brdf.Lambert(rho), lv, cv)
+    t, d = (np.asarray(c.radiance[0], np.float64).mean(-1) for c in (true, diffuse))  # [L, P]
+    mask = np.asarray(true.mask[0])
+    spec = np.where(mask, t - d, 0.0)
+    lit = np.sum(spec > 0.1 * spec.max(0, keepdims=True), 0)  # lights within a tenth of the sample's peak
+    sharp = (spec.max(0) > np.max(np.where(mask, d, 0.0), 0)) & (lit <= 2)
+    assert sharp.sum() >= 20, sharp.sum()
+    f = fit(_noisy(true, 0.01, 13), surface, model="auto")
+    model = np.asarray(f.model)
+    assert not np.any(model[sharp] == relight.MODELS.index("lambert"))
+    pred = stage.simulate(f.maps(surface).frame(surface), rig, [cam], f.material(), lv, cv)
+    peak = np.argmax(np.where(mask, t, -np.inf), 0)
+    idx = (peak, np.arange(P))
+    rel = np.abs(np.asarray(pred.radiance[0], np.float64).mean(-1)[idx] - t[idx]) / t[idx]
+    assert np.mean(rel[sharp] < 0.1) >= 0.9, np.sort(rel[sharp])[::-1][:8]
+
+
 @pytest.mark.parametrize("model", ["ggx", "blinn_phong"])
 def test_a_lobe_the_lights_do_not_constrain_is_flagged_collapsed(scene, model):
     """Lambertian samples under a fixed lobed rung: the fit switches the lobe off (F0 to 0 or roughness to 1),
