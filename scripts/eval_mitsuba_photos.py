@@ -193,8 +193,10 @@ def sensor_agreement(mi, scene, camera, n: int = 64, seed: int = 0) -> float:
 
 
 def render_capture(folder: Path, mesh, surface, maps, rig, cameras, names, spp: int, work: Path,
-                   progress=print) -> dict:
+                   progress=print, material=None) -> dict:
     """Render the OLAT capture with Mitsuba and write it to ``folder`` in the relight-photos layout.
+    ``material``: None (write_mitsuba_scene's material, the maps'), or a function that rewrites the OLAT scene's
+    XML file in place (another BSDF: scripts/eval_mitsuba_outside.py).
 
     Returns statistics: seconds, the largest radiance, the share of clipped pixel values, per camera the mask's
     pixel count and the sensor agreement (px, :func:`sensor_agreement`)."""
@@ -221,7 +223,10 @@ def render_capture(folder: Path, mesh, surface, maps, rig, cameras, names, spp: 
         mask = _erode(cover >= 1.0 - 1e-6)
         (folder / name).mkdir()
         write_png(folder / name / "mask.png", np.where(mask, 255, 0).astype(np.uint8))
-        scene = mi.load_file(str(_edit_scene(xml, xml.with_name("olat.xml"), True)))
+        olat = _edit_scene(xml, xml.with_name("olat.xml"), True)
+        if material is not None:
+            material(olat)
+        scene = mi.load_file(str(olat))
         agree = sensor_agreement(mi, scene, cam, seed=v)
         if agree > SENSOR_TOL_PX:
             raise RuntimeError(f"{name}: Mitsuba's sensor and the camera disagree by {agree:.3g} px")
