@@ -66,8 +66,8 @@ def add_parser(sub) -> None:
     p.add_argument("--solver", default="lm", choices=METHODS,
                    help=f"least-squares solver: {', '.join(METHODS)} (default: lm, Levenberg-Marquardt)")
     p.add_argument("--model", default=None, choices=FIT_MODELS,
-                   help="reflectance model: a rung of the ladder or auto (per-texel selection on held-out "
-                        "observations); default: relight.fit's own (auto)")
+                   help="reflectance model: a rung of the ladder or auto (per-texel selection on the pooled "
+                        "held-out and training prediction error); default: relight.fit's own (auto)")
     p.add_argument("--normals", action="store_true", help="also fit the shading normal")
     p.add_argument("--subsurface", default="off", choices=SUBSURFACE_MODES,
                    help="texel-space captures: after the BRDF fit, fit subsurface scattering (the diffuse mean free "
