@@ -19,7 +19,7 @@ from ..results import ResultSetError
 from ..results import format_version as _format_version
 
 __all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_image_size",
-           "check_radiance", "path_inside", "path_template", "set_refusal_as"]
+           "check_radiance", "file_name", "path_inside", "path_template", "set_refusal_as"]
 
 # The largest image a reader decodes: 2^28 pixels (16384 x 16384, 3 GiB as float32 RGB). Readers check a
 # file's declared size against it before allocating anything, so a corrupt or hostile header (an HDR saying
@@ -36,6 +36,9 @@ MAX_RADIANCE = 1e15
 # The longest relative path a user's file may name (path_inside); Linux's PATH_MAX is 4096, and an
 # over-long name would surface as an OSError from the first os call instead of an error naming the field.
 MAX_PATH_CHARS = 1024
+# The longest name a user's file may give to something that becomes one file or folder name (file_name): most
+# file systems' NAME_MAX, in UTF-8 bytes.
+MAX_NAME_BYTES = 255
 
 
 class ImageFormatError(ValueError):
@@ -86,6 +89,24 @@ def path_inside(folder: str | os.PathLike, rel: object, where: str, *, what: str
     if not path.resolve().is_relative_to(folder.resolve()):
         raise error(f"{where}: path {rel!r} leads outside {what} (through a link)")
     return path
+
+
+def file_name(name: object, where: str, *, error: type[ValueError] = ImageFormatError) -> str:
+    """``name``, read from a user's file, checked as one plain file-name component before anything makes it a
+    path (a camera's name becomes its image folder, say): a non-empty string of at most ``MAX_NAME_BYTES``
+    UTF-8 bytes with no path separator (``/``, ``\\``), drive colon, control character or NUL, and not ``.``
+    or ``..``. Anything else could name a file outside the output folder, or a different one on another
+    system. Raises ``error`` (default :class:`ImageFormatError`) naming ``where``."""
+    shown = repr(name) if len(repr(name)) <= 80 else repr(name)[:77] + "..."
+    if not isinstance(name, str) or not name:
+        raise error(f"{where}: must be a non-empty file name (a string), got {shown}")
+    bad = sorted({c for c in name if c in '/\\:' or ord(c) < 32 or ord(c) == 127})
+    if bad or name in (".", "..") or len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        why = (f"it holds {', '.join(repr(c) for c in bad)}" if bad else
+               "'.' and '..' name folders" if name in (".", "..") else f"it is over {MAX_NAME_BYTES} bytes")
+        raise error(f"{where}: {shown} is not a plain file name ({why}); it would become a path, so it must be "
+                    "one name with no '/', '\\', ':' or control characters")
+    return name
 
 
 def path_template(template: object, fields: Mapping[str, object], required: tuple[str, ...], where: str) -> str:

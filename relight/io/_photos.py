@@ -35,7 +35,7 @@ import stage
 
 from ..image._tonemap import srgb_decode, srgb_encode, to_uint16
 from ._capture import _atomic_folder
-from ._errors import ImageFormatError, check_radiance, path_inside, path_template
+from ._errors import ImageFormatError, check_radiance, file_name, path_inside, path_template
 from ._exr import read_exr, write_exr
 from ._json import read_json, write_json
 from ._png import read_png, write_png
@@ -169,8 +169,9 @@ class PhotoCapture:
         entries = doc.get("cameras") if isinstance(doc, Mapping) else doc
         if not isinstance(entries, list) or not entries:
             raise _err(cam_path, "field 'cameras' must be a non-empty list of cameras")
-        self.names = [str(e.get("name", f"cam{i:03d}")) if isinstance(e, Mapping) else f"cam{i:03d}"
-                      for i, e in enumerate(entries)]
+        # A camera's name becomes its folder in what commands write (relight render: OUT/<name>/relit.exr).
+        self.names = [file_name(str(e.get("name", f"cam{i:03d}")) if isinstance(e, Mapping) else f"cam{i:03d}",
+                                f"{cam_path}: cameras[{i}] field 'name'") for i, e in enumerate(entries)]
         if len(set(self.names)) != len(self.names):
             raise _err(cam_path, f"camera names must be distinct, got {self.names}")
         cams = stage.cameras_from_doc(doc, cam_path)  # the file's convention and units apply to every camera
@@ -378,7 +379,8 @@ def write_photo_capture(folder: str | os.PathLike, images: Sequence[np.ndarray],
     folder = Path(folder)
     if folder.exists() and (not folder.is_dir() or (any(folder.iterdir()) and not is_photo_capture(folder))):
         raise FileExistsError(f"{folder}: exists and is neither empty nor a photo capture; refusing to replace it")
-    names = [f"cam{i:03d}" for i in range(len(cameras))] if names is None else [str(n) for n in names]
+    names = ([f"cam{i:03d}" for i in range(len(cameras))] if names is None else
+             [file_name(str(n), f"write_photo_capture: names[{i}]", error=ValueError) for i, n in enumerate(names)])
     if not (len(images) == len(cameras) == len(names)):
         raise ValueError(f"{folder}: {len(images)} image stacks, {len(cameras)} cameras, {len(names)} names")
     if fmt not in ("exr", "png"):

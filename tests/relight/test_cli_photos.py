@@ -187,3 +187,37 @@ def test_simulate_image_space_round_trip(tmp_path, const_env, grad_env):
     assert main(["simulate", "--space", "image", "--rig", "dome:12", "--image-size", "8", "--out",
                  str(tmp_path / "other"), "--quiet"]) == 1
     assert (tmp_path / "other" / "keep.txt").is_file()
+
+
+@pytest.mark.parametrize("name", ["../ESCAPED", "ABSOLUTE", "a/b", "..", ".", "c:evil", "x\x00y",
+                                  "tab\there", "\\\\server\\share", "", "n" * 256])
+def test_a_camera_name_that_is_not_a_plain_file_name_is_refused(tmp_path, const_env, rig, capsys, name):
+    """issue 29, item 1: a camera's name becomes its folder under --out (OUT/<name>/relit.exr), so a name from
+    cameras.json must be one plain file-name component (relight.io._errors.file_name). A name with a path
+    separator, a drive colon, a control character, '.' or '..', or over 255 bytes is refused naming the file
+    and field; nothing is written beside --out or anywhere else ("ABSOLUTE": an absolute path in tmp_path)."""
+    name = str(tmp_path / "abs-escaped") if name == "ABSOLUTE" else name
+    folder, _ = _photos(tmp_path, rig, np.full(rig.num_lights, 0.2))
+    doc = json.loads((folder / "cameras.json").read_text())
+    doc["cameras"][0]["name"] = name
+    (folder / "cameras.json").write_text(json.dumps(doc))
+    info = json.loads((folder / "capture.json").read_text())
+    info["views"][0]["camera"] = name
+    (folder / "capture.json").write_text(json.dumps(info))
+    before = set(tmp_path.rglob("*"))
+    out = tmp_path / "nest" / "out"
+    assert main(["render", str(folder), "--envmap", str(const_env), "--out", str(out), "--quiet"]) != 0
+    err = capsys.readouterr().err
+    assert "cameras.json: cameras[0] field 'name'" in err, err
+    assert ("not a plain file name" in err) or ("must be a non-empty file name" in err), err
+    # Nothing new anywhere but --out and its parent (which the command may make before it reads the capture).
+    assert set(tmp_path.rglob("*")) - before <= {tmp_path / "nest", out} | set(out.rglob("*"))
+    assert not any(out.rglob("*.exr")) and not (tmp_path / "abs-escaped").exists()
+
+
+def test_write_photo_capture_refuses_a_name_that_would_leave_its_folder(tmp_path, rig):
+    imgs = [np.zeros((rig.num_lights, H, W, 3), np.float32)] * 2
+    with pytest.raises(ValueError, match=r"names\[1\].*not a plain file name"):
+        write_photo_capture(tmp_path / "p", imgs, rig, stage.camera_ring(2, 1000.0, width=W, height=H),
+                            names=["ok", "../up"])
+    assert not (tmp_path / "up").exists() and not (tmp_path / "p").exists()
