@@ -67,7 +67,21 @@ def _file_uri(path: Path) -> str:
 
 
 def _esc(s) -> str:
+    """Text (from a file, a flag, anything) as HTML character data or an attribute value."""
     return html.escape(str(s), quote=True)
+
+
+# JSON that goes inside a <script> element: the HTML parser ends the element at the first "</script", whatever
+# the JavaScript around it, and "<!--" changes how it parses; U+2028 / U+2029 end a line in older JavaScript.
+_SCRIPT_ESCAPES = {ord("<"): "\\u003c", ord(">"): "\\u003e", ord("&"): "\\u0026", 0x2028: "\\u2028",
+                   0x2029: "\\u2029"}
+
+
+def _script_json(value) -> str:
+    """``value`` as a JavaScript literal that is safe inside a <script> element: JSON with ``<``, ``>``, ``&``
+    and the two Unicode line separators written as \\u escapes (the same string to JSON.parse and to
+    JavaScript; never markup)."""
+    return json.dumps(value).translate(_SCRIPT_ESCAPES)
 
 
 # ---------------------------------------------------------------- truth | fit | error
@@ -231,7 +245,7 @@ def _relit(sweeps: list[Sweep], note: str | None) -> tuple[str, str]:
                 f'{", exposure " + ", ".join(exp) if exp else ""})</span></div>')
     data = [{"label": s.label, "angles": [float(a) for a in s.angles_deg], "frames": [data_uri(f) for f in s.frames]}
             for s in sweeps]
-    return controls + f'<div class="sweeps">{figs}</div>', "window.SWEEPS=" + json.dumps(data) + ";"
+    return controls + f'<div class="sweeps">{figs}</div>', "window.SWEEPS=" + _script_json(data) + ";"
 
 
 def _comparison_html(folder: Path, truth_dir: Path, fit_dir: Path) -> str:
