@@ -24,6 +24,7 @@ import html
 import io
 import json
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,9 @@ INDEX = "index.html"
 MAX_EMBEDDED_BYTES = 24 << 20
 # A single PNG larger than this is linked, not embedded.
 MAX_IMAGE_BYTES = 4 << 20
+# report.md and settings.json larger than this are not shown (a command writes a few kB of each).
+MAX_TEXT_BYTES = 1 << 20
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Texel-space maps shown in the maps section and the truth | fit | error table, in this order.
 MAP_PREVIEWS = ("albedo", "specular", "roughness", "mean_free_path", "coverage", "normals", "normal")
 # Folders never searched for images: the Mitsuba scene's textures (EXR copies) and a fit's resumable parts.
@@ -62,8 +66,29 @@ def data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _file_uri(path: Path) -> str:
-    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+def _read_inside(folder: Path, path: Path, limit: int, signature: bytes = b"") -> tuple[bytes | None, str]:
+    """The one rule for what the page takes from the folder it shows: ``path``'s bytes if it is a regular file
+    inside ``folder`` once links are followed, of at most ``limit`` bytes, starting with ``signature`` (what its
+    name claims); else (None, why). A link to a file elsewhere (``/etc/passwd``), a device (``/dev/zero``) or a
+    FIFO is never opened, so it can neither leak into the page nor exhaust memory nor block."""
+    try:
+        real = path.resolve(strict=True)
+        if not real.is_relative_to(folder.resolve()):
+            return None, "a link to outside the folder"
+        st = os.stat(real)
+        if not stat.S_ISREG(st.st_mode):
+            return None, "not a regular file"
+        if st.st_size > limit:
+            return None, "too large for the page"
+        with open(real, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as err:
+        return None, f"unreadable ({err.strerror or type(err).__name__})"
+    if len(data) > limit:
+        return None, "too large for the page"
+    if not data.startswith(signature):
+        return None, "not the type its name says"
+    return data, ""
 
 
 def _esc(s) -> str:
@@ -271,9 +296,10 @@ def _checked(sweeps) -> list[Sweep]:
 
 
 def _read_settings(folder: Path) -> dict:
+    data, _ = _read_inside(folder, folder / "settings.json", MAX_TEXT_BYTES)
     try:
-        doc = json.loads((folder / "settings.json").read_text())
-    except (OSError, ValueError, UnicodeDecodeError):
+        doc = json.loads(data) if data is not None else {}
+    except (ValueError, UnicodeDecodeError, RecursionError):
         return {}
     return doc if isinstance(doc, dict) else {}
 
@@ -316,12 +342,12 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
     left_out: list[str] = []
 
     def embed(path: Path) -> str | None:
-        size = path.stat().st_size
-        if size > MAX_IMAGE_BYTES or size > budget[0]:
-            left_out.append(path.relative_to(folder).as_posix())
+        data, why = _read_inside(folder, path, min(MAX_IMAGE_BYTES, budget[0]), _PNG_SIGNATURE)
+        if data is None:
+            left_out.append(f"{path.relative_to(folder).as_posix()} ({why})")
             return None
-        budget[0] -= size
-        return _file_uri(path)
+        budget[0] -= len(data)
+        return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
 
     body, nav = [], []
 
@@ -333,8 +359,10 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
     section("relit", "Relit", relit)
 
     report = folder / "report.md"
-    if report.is_file():
-        section("report", "Report", markdown_html(report.read_text(errors="replace"), heading_offset=2))
+    if report.exists() or report.is_symlink():
+        text, why = _read_inside(folder, report, MAX_TEXT_BYTES)
+        section("report", "Report", markdown_html(text.decode("utf-8", errors="replace"), heading_offset=2)
+                if text is not None else f'<p class="note">report.md not shown: {_esc(why)}</p>')
 
     truth_dir, fit_dir = _truth_pair(folder)
     if truth_dir is not None and fit_dir is not None:
@@ -346,7 +374,7 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
     if others:
         section("images", "Images", f'<div class="grid">{"".join(others)}</div>')
     if left_out:
-        body.append(f'<p class="note">Not embedded (too large for the page): {_esc(", ".join(left_out))}</p>')
+        body.append(f'<p class="note">Not embedded: {_esc(", ".join(left_out))}</p>')
 
     if settings:
         section("settings", "Settings", f"<pre>{_esc(json.dumps(settings, indent=2))}</pre>")

@@ -25,3 +25,31 @@ def test_a_label_from_a_file_stays_data(tmp_path):
     m = re.search(r"<script>window\.SWEEPS=(.*?);</script>", page, re.S)
     assert m is not None and "</" not in m.group(1)
     assert json.loads(m.group(1))[0]["label"] == HOSTILE
+
+
+def test_the_page_embeds_only_regular_files_inside_its_folder(tmp_path):
+    """issue 29, item 3: what the page embeds is a regular file inside the folder once links are followed, of
+    bounded size, of the type its name claims (relight.view._page._read_inside). A link to a file elsewhere, a
+    device, a FIFO (which would block the read) and a PNG name on text are listed as not embedded, and
+    report.md linked to a file outside is not shown."""
+    import os
+
+    from relight.io import write_png
+
+    folder = tmp_path / "set"
+    folder.mkdir()
+    secret = tmp_path / "secret.txt"
+    secret.write_text("root:x:0:0:SECRET-CONTENT")
+    write_png(folder / "ok.png", np.full((4, 4, 3), 128, np.uint8))
+    (folder / "leak.png").symlink_to(secret)
+    (folder / "zero.png").symlink_to("/dev/zero")
+    os.mkfifo(folder / "fifo.png")
+    (folder / "text.png").write_text("not a png")
+    (folder / "report.md").symlink_to(secret)
+    page = page_html(folder)
+    assert "SECRET" not in page and "cm9vdDp4" not in page  # the secret, and its base64
+    assert "ok.png" in page and page.count("data:image/png;base64,") >= 1
+    for name, why in (("leak.png", "a link to outside the folder"), ("zero.png", "a link to outside the folder"),
+                      ("fifo.png", "not a regular file"), ("text.png", "not the type its name says")):
+        assert f"{name} ({why})" in page, name
+    assert "report.md not shown: a link to outside the folder" in page
