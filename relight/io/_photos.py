@@ -89,6 +89,19 @@ def _positive(value, n: int, where: str) -> np.ndarray:
     return arr
 
 
+def _scale(v: Mapping, n: int, where: str) -> np.ndarray:
+    """1 / (exposure x gain) per light [n], float64; refused when it is not a finite float32 (exposure x gain
+    below ~3e-39: a unit mistake, not a sensor)."""
+    prod = _positive(v.get("exposure", 1.0), n, f"{where}: field 'exposure'") * \
+        _positive(v.get("gain", 1.0), n, f"{where}: field 'gain'")
+    with np.errstate(divide="ignore", over="ignore"):
+        scale = 1.0 / prod
+    if not np.all(scale <= np.finfo(np.float32).max):
+        raise _err(where, f"fields 'exposure' x 'gain' = {float(prod.min()):.3g} at the smallest: radiance = pixel "
+                          "value / (exposure x gain) would overflow float32 (are they in the stated units?)")
+    return scale
+
+
 def _encoding(value, where: str) -> float | str:
     """'linear', 'srgb' or a gamma exponent from 'gamma:G'."""
     if value in _ENCODINGS:
@@ -231,8 +244,7 @@ class PhotoCapture:
         return {"files": files, "mask": mask, "saturation": sat,
                 "scale_stated": "exposure" in v or "gain" in v,
                 "encoding": _encoding(v.get("encoding", "linear"), f"{where}: field 'encoding'"),
-                "scale": 1.0 / (_positive(v.get("exposure", 1.0), L, f"{where}: field 'exposure'")
-                                * _positive(v.get("gain", 1.0), L, f"{where}: field 'gain'")),
+                "scale": _scale(v, L, where),
                 "size": (cam.height, cam.width)}
 
     @property
@@ -326,6 +338,9 @@ class PhotoCapture:
             ok = mask & ~saturated
             valid[j] = ok
             rad[j] = np.where(ok[..., None], img * np.float32(v["scale"][l]), np.float32(0))
+            # A tiny exposure x gain (wrong units, counts taken for a fraction of full scale) makes radiance
+            # beyond what the downstream sums hold: refused naming the file, not rendered as Inf and NaN.
+            check_radiance(rad[j], v["files"][l], "radiance (the pixel values / (exposure x gain))")
         return PhotoView(self.names[view], self.cameras[view], rad, valid, mask)
 
     def iter_views(self) -> Iterator[PhotoView]:

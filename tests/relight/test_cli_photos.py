@@ -221,3 +221,20 @@ def test_write_photo_capture_refuses_a_name_that_would_leave_its_folder(tmp_path
         write_photo_capture(tmp_path / "p", imgs, rig, stage.camera_ring(2, 1000.0, width=W, height=H),
                             names=["ok", "../up"])
     assert not (tmp_path / "up").exists() and not (tmp_path / "p").exists()
+
+
+@pytest.mark.parametrize("exposure, message", [(1e-300, "would overflow float32"), (1e-20, "values above 1e+15")])
+def test_an_exposure_in_the_wrong_units_is_refused_not_rendered_as_nan(tmp_path, const_env, rig, capsys, exposure,
+                                                                        message):
+    """issue 29, item 6: ``"exposure": 1e-300`` made radiance = value / (exposure x gain) overflow, and `relight
+    render` wrote relit.exr with NaN pixels and exit 0. A scale that overflows float32 is refused at the field;
+    one whose radiance passes relight.io's MAX_RADIANCE (1e15) at the first image that does."""
+    folder, _ = _photos(tmp_path, rig, np.full(rig.num_lights, 0.2))
+    info = json.loads((folder / "capture.json").read_text())
+    info["exposure"] = exposure
+    (folder / "capture.json").write_text(json.dumps(info))
+    out = tmp_path / "out"
+    assert main(["render", str(folder), "--envmap", str(const_env), "--out", str(out), "--quiet"]) != 0
+    err = capsys.readouterr().err
+    assert message in err and ("capture.json" in err or "l000.exr" in err), err
+    assert not any(out.rglob("*.exr"))
