@@ -156,8 +156,9 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
         model: "auto" (default) or a rung of ``relight.MODELS`` ("lambert", "blinn_phong", "ggx",
             "ggx_aniso"). "auto" is the ladder: every rung is fitted on all but every ``holdout``-th of
             each sample's valid observations ranked from its mirror direction outward, scored on those,
-            and each sample keeps the simplest rung whose held-out and training mean squared errors are
-            within two standard errors of the noise of the best; then it is refitted on every light, and
+            and each sample keeps the simplest rung whose prediction error (the held-out and the
+            parameter-corrected training mean squared errors, pooled) is within two standard errors of
+            the noise of the best (``_ladder.choose_rungs``); then it is refitted on every light, and
             goes one rung down while its lobe's peak lies where no light saw it and predicts more than
             4x its brightest observation (docs/fit.md, "How", item 8). The defaults, "auto" with
             ``loss="l2"``, are the suite's choice (docs/fit.md, "Defaults").

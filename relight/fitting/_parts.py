@@ -21,6 +21,7 @@ processes, interrupted and resumed, merges to exactly the ``Fit`` of one
 from __future__ import annotations
 
 import hashlib
+import inspect
 import io
 import json
 import re
@@ -83,8 +84,8 @@ class _Plan:
     padded shapes, the valid counts), plus the fingerprint of it all."""
 
     def __init__(self, capture, surface, block: int, fit_kw: dict):
-        kw = dict(model=_d.DEFAULT_MODEL, normals=False, solver="lm", loss=_d.DEFAULT_LOSS, cauchy=0.1,
-                  alpha_floor=None, holdout=5, options=None)
+        # relight.fit's keywords and defaults, read from its signature (one home for them).
+        kw = {k: p.default for k, p in inspect.signature(_d.fit).parameters.items() if p.kind is p.KEYWORD_ONLY}
         unknown = set(fit_kw) - set(kw)
         if unknown:
             raise TypeError(f"fit_parts: unknown fit keyword(s) {sorted(unknown)} (on_block is fit_parts' own)")
