@@ -1,7 +1,7 @@
 """Capture stores: an OLAT capture as one chunked, compressed Zarr v3 group on
 disk, for captures larger than memory (docs/relight_io.md, "Capture store").
 
-Layout (format ``relight-capture-store``, version 1)::
+Layout (format ``relight-capture-store``, version 2)::
 
     CAPTURE.zarr/zarr.json            the Zarr v3 group (attributes: relight.format, relight.generation)
     CAPTURE.zarr/radiance/            [V, L, P, C] float32 or float16, chunks (1, Lc, Pc, C)
@@ -9,6 +9,9 @@ Layout (format ``relight-capture-store``, version 1)::
     CAPTURE.zarr/rig.json             as a capture folder's rig.json
     CAPTURE.zarr/cameras.json         as a capture folder's cameras.json
     CAPTURE.zarr/relight-store.json   the manifest, written last: the completion marker
+
+Version 2 adds ``chunk_digests``: the digest of every chunk file of both arrays, so that a store missing a
+chunk, or holding a damaged one, is refused by name instead of read as zeros (``_store_chunks.py``).
 
 The manifest records the shape, dtype, channel names, sample_shape [H, W],
 ``half`` and ``has_valid`` (a capture folder's capture.json fields), the
@@ -60,12 +63,13 @@ from ..results import swap_into
 from ._capture import _rig_light_count
 from ._errors import ImageFormatError, check_radiance, path_inside
 from ._json import jsonable, write_json
+from ._store_chunks import DIGEST, ChecksummedStore
 
 __all__ = ["CaptureStoreError", "CaptureStoreWriter", "StoreChangedError", "default_chunks", "is_capture_store",
            "write_capture_store"]
 
 FORMAT = "relight-capture-store"
-VERSION = 1
+VERSION = 2
 MARKER = "relight-store.json"
 # About 2 MiB of uncompressed radiance per chunk (see the module docstring).
 TARGET_CHUNK_BYTES = 2 << 20
@@ -260,7 +264,8 @@ class CaptureStoreWriter:
         # A writer dropped without close() or abort() leaves no temporary folder behind either.
         self._cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
         try:
-            root = zarr.open_group(store=str(self._tmp), mode="w", zarr_format=3,
+            self._store = ChecksummedStore(self._tmp, arrays=tuple(_ARRAYS.values()))
+            root = zarr.open_group(store=self._store, mode="w", zarr_format=3,
                                    attributes={"relight": {"format": FORMAT, "version": VERSION,
                                                            "generation": self._generation}})
             # write_empty_chunks: every chunk is on disk, so a store missing a chunk file is damaged, not zeros.
@@ -368,6 +373,11 @@ class CaptureStoreWriter:
             if missing:
                 raise ValueError(f"{self.path}: capture incomplete, {missing} of {self._total} chunks not fully "
                                  f"written ({len(self._pending)} partly); nothing was committed")
+            digests = {name: {k.split("/", 1)[1]: d for k, d in self._store.digests.items()
+                              if k.startswith(f"{name}/")} for name in _ARRAYS.values()}
+            if sum(map(len, digests.values())) != 2 * self._total:
+                raise ValueError(f"{self.path}: {sum(map(len, digests.values()))} chunk files written for "
+                                 f"{2 * self._total} chunks; nothing was committed")
             write_json(self._tmp / _FILES["rig"], self._rig, indent=1)
             write_json(self._tmp / _FILES["cameras"], self._cameras, indent=1)
             V, L, P, C = self.shape
@@ -377,6 +387,7 @@ class CaptureStoreWriter:
                         "half": self.dtype == np.float16, "has_valid": self.has_valid,
                         "arrays": dict(_ARRAYS), "files": dict(_FILES),
                         "codec": {"name": "blosc", "cname": "zstd", "clevel": _CLEVEL},
+                        "chunk_digests": {"digest": DIGEST, **digests},
                         "metadata": self._metadata}
             write_json(self._tmp / MARKER, manifest, indent=1)
             _swap_in(self._tmp, self.path)

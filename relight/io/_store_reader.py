@@ -36,6 +36,7 @@ from ._store import (
     StoreChangedError,
     _inside,
 )
+from ._store_chunks import DIGEST, ChecksummedStore, DamagedChunkError, chunk_keys
 
 __all__ = ["CaptureStore", "capture_folder_to_store", "open_capture_store", "store_to_capture_folder"]
 
@@ -90,6 +91,12 @@ class CaptureStore:
             dtype = _DTYPES[info["dtype"]]
             self.generation = str(info["generation"])
             arrays, files = dict(info["arrays"]), dict(info["files"])
+            version = int(info.get("version", 1))
+            digests = info.get("chunk_digests") if version >= 2 else None
+            if version >= 2 and not (isinstance(digests, Mapping) and digests.get("digest") == DIGEST
+                                     and all(isinstance(digests.get(k), Mapping) for k in _ARRAYS)):
+                raise ValueError(f"field 'chunk_digests' must hold a {DIGEST} digest per chunk of "
+                                 f"{sorted(_ARRAYS)}")
         except (KeyError, TypeError, ValueError) as err:
             raise CaptureStoreError(f"{where}: missing or bad field ({err!r})") from None
         if len(shape) != 4 or min(shape) < 1:
@@ -111,11 +118,13 @@ class CaptureStore:
             with set_refusal_as(self.path, CaptureStoreError):
                 rs = open_result_set(self.path)
                 rs.check([n for n in (MARKER, *(str(files.get(k)) for k in _FILES)) if n in rs.files])
-        self._open_parts(arrays, files, where)
+        self._open_parts(arrays, files, where, digests)
         self.chunks = tuple(int(c) for c in self._radiance.chunks)
 
-    def _open_parts(self, arrays: dict, files: dict, where: str) -> None:
-        """Read rig.json and cameras.json and open the two arrays, checking each against the manifest."""
+    def _open_parts(self, arrays: dict, files: dict, where: str, digests: Mapping | None) -> None:
+        """Read rig.json and cameras.json and open the two arrays, checking each against the manifest; the
+        arrays read through a :class:`ChecksummedStore`, so a chunk file that is missing, or (with the
+        version 2 ``digests``) differs from what was written, is refused, never read as zeros."""
         import zarr
 
         shape = self.shape
@@ -135,10 +144,14 @@ class CaptureStore:
         if not isinstance(self.cameras, list) or len(self.cameras) != self.n_views:
             n = len(self.cameras) if isinstance(self.cameras, list) else "no list of"
             raise CaptureStoreError(f"{cam_path}: {n} cameras but {where} declares {self.n_views} views")
+        rel = {k: Path(os.path.relpath(paths[k], self.path.resolve())).as_posix() for k in _ARRAYS}
+        expected = None if digests is None else {f"{rel[k]}/{key}": str(d) for k in _ARRAYS
+                                                 for key, d in dict(digests[k]).items()}
         try:
-            root = zarr.open_group(store=str(self.path), mode="r", zarr_format=3)
-            self._radiance = root[os.path.relpath(paths["radiance"], self.path.resolve())]
-            self._mask = root[os.path.relpath(paths["mask"], self.path.resolve())]
+            store = ChecksummedStore(self.path, read_only=True, digests=expected, arrays=tuple(rel.values()))
+            root = zarr.open_group(store=store, mode="r", zarr_format=3)
+            self._radiance = root[rel["radiance"]]
+            self._mask = root[rel["mask"]]
         except (KeyError, FileNotFoundError, ValueError) as err:
             raise CaptureStoreError(f"{self.path}: the Zarr group or its arrays cannot be opened ({err!r})") from None
         attrs = dict(root.attrs).get("relight", {})
@@ -152,9 +165,25 @@ class CaptureStore:
                                         f"{MARKER} declares {tuple(want)}")
             if np.dtype(arr.dtype) != dt:
                 raise CaptureStoreError(f"{self.path}: array '{name}' is {np.dtype(arr.dtype)}, expected {dt}")
+            grid = [-(-s // c) for s, c in zip(arr.shape, arr.chunks, strict=True)]
+            if expected is not None and not set(chunk_keys(rel[name], grid)) <= expected.keys():
+                raise CaptureStoreError(f"{where}: field 'chunk_digests' does not cover every chunk of array "
+                                        f"'{name}' ({int(np.prod(grid))} chunks)")
 
     def __repr__(self) -> str:
         return f"CaptureStore({str(self.path)!r}, shape={self.shape}, dtype={self.dtype.name}, chunks={self.chunks})"
+
+    def _damaged(self, err: Exception) -> Exception:
+        """A read's failure as the error to raise: a missing or damaged chunk (:class:`DamagedChunkError`) or a
+        chunk the codec cannot decode (a truncated file of a version 1 store) is a CaptureStoreError naming the
+        store and what is wrong with it; anything else as it is."""
+        if isinstance(err, DamagedChunkError):
+            return CaptureStoreError(f"{self.path}: damaged store: {err}; it is not read as zeros. Rewrite it "
+                                     "(relight convert from its source, or re-run the command that made it)")
+        if isinstance(err, (RuntimeError, ValueError)) and not isinstance(err, ImageFormatError):
+            return CaptureStoreError(f"{self.path}: damaged store: a chunk cannot be decoded ({err}). Rewrite it "
+                                     "(relight convert from its source, or re-run the command that made it)")
+        return err
 
     def _check_generation(self) -> None:
         try:
@@ -192,9 +221,9 @@ class CaptureStore:
         try:
             rad = np.asarray(self._radiance.get_orthogonal_selection((*sel, slice(None))))
             msk = np.asarray(self._mask.get_orthogonal_selection(sel))
-        except Exception:
+        except Exception as err:
             self._check_generation()  # a replaced store can fail to decode: say so, not why
-            raise
+            raise self._damaged(err) from err
         self._check_generation()
         if dtype is not None:
             rad = rad.astype(dtype, copy=False)
@@ -210,9 +239,9 @@ class CaptureStore:
         self._check_generation()
         try:
             msk = np.asarray(self._mask.get_orthogonal_selection(sel))
-        except Exception:
+        except Exception as err:
             self._check_generation()
-            raise
+            raise self._damaged(err) from err
         self._check_generation()
         return msk.astype(bool, copy=False)
 

@@ -3,8 +3,8 @@
 Round trips folder -> store -> folder bit for bit (float32 and half), the
 streaming writer against stage.simulate, chunked reads that cover every sample
 once in O(chunk) memory, atomic commits and replacement, the refusals (no
-marker, wrong shape, a path out of the store), load_texel_capture on a store
-and `relight convert` both ways."""
+marker, wrong shape, a path out of the store, a missing or damaged chunk),
+load_texel_capture on a store and `relight convert` both ways."""
 
 import json
 import os
@@ -324,3 +324,70 @@ def test_cli_convert_both_ways(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "relight convert: error: " in err and match in err, err
     assert not any((tmp_path / n).exists() for n in ("x.zarr", "x", "y.zarr", "z.zarr"))
+
+
+def _damage(kind):
+    """Edits of one chunk file of a store (issue 29, item 5): what a partial copy, a full disk or bit rot leaves."""
+    def gone(p):
+        p.unlink()
+
+    def truncated(p):
+        p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])
+
+    def flipped(p):
+        b = bytearray(p.read_bytes())
+        b[-1] ^= 0x01
+        p.write_bytes(bytes(b))
+
+    return {"gone": gone, "truncated": truncated, "flipped": flipped}[kind]
+
+
+@pytest.mark.parametrize("version", [2, 1])
+@pytest.mark.parametrize("array,key,kind", [("radiance", "c/0/1/1/0", "gone"), ("radiance", "c/0/0/2/0", "truncated"),
+                                            ("mask", "c/0/1/0", "flipped")])
+def test_a_missing_or_damaged_chunk_is_refused_by_name(tmp_path, array, key, kind, version):
+    """Zarr reads a missing chunk file as its fill value: a store that lost one chunk would be fitted as black,
+    masked-out pixels (the reported case: `relight fit` exited 0 on zero-filled data). Every read that touches a
+    missing, truncated or changed chunk raises CaptureStoreError naming the store and the chunk; reads that do not
+    touch it are exact. A version 1 store (no digests) still refuses a missing or undecodable chunk; a flipped bit
+    that still decodes is what only version 2's digests can catch."""
+    rad, mask = _random_store(tmp_path / "s.zarr", (1, 6, 300, 3), (1, 3, 100, 3))
+    if version == 1:
+        _edit_manifest(tmp_path / "s.zarr", lambda d: (d.pop("chunk_digests"), d.update(version=1)))
+    _damage(kind)(tmp_path / "s.zarr" / array / key)
+    store = open_capture_store(tmp_path / "s.zarr")
+    sample_block = int(key.split("/")[3]) * 100
+    # The untouched chunks read exactly.
+    r, m = store.read(samples=slice((sample_block + 100) % 300, (sample_block + 100) % 300 + 100))
+    lo = (sample_block + 100) % 300
+    np.testing.assert_array_equal(r, rad[:, :, lo:lo + 100])
+    np.testing.assert_array_equal(m, mask[:, :, lo:lo + 100])
+    if version == 1 and kind == "flipped":
+        return
+    message = f"{tmp_path / 's.zarr'}: damaged store: " + ("a chunk cannot be decoded" if version == 1 and kind ==
+                                                           "truncated" else f"chunk file {array}/{key}")
+    with pytest.raises(CaptureStoreError, match=message):
+        store.read()
+    with pytest.raises(CaptureStoreError, match="damaged store"):
+        list(store.iter_sample_chunks())
+    if array == "mask":
+        with pytest.raises(CaptureStoreError, match="damaged store"):
+            store.read_mask()
+
+
+def test_fit_and_convert_refuse_a_store_with_a_missing_chunk(tmp_path, capsys):
+    """The reported commands: `relight fit` and `relight convert` of a store missing a radiance chunk end with the
+    one-line error naming the chunk (exit 1), and write nothing."""
+    folder, _, _ = _folder(tmp_path)
+    assert main(["convert", str(folder), str(tmp_path / "c.zarr"), "--quiet"]) == 0
+    chunk = sorted((tmp_path / "c.zarr" / "radiance").rglob("c/*/*/*/*"))[1]
+    chunk.unlink()
+    name = chunk.relative_to(tmp_path / "c.zarr").as_posix()
+    for argv in (["convert", str(tmp_path / "c.zarr"), str(tmp_path / "back")],
+                 ["fit", str(tmp_path / "c.zarr"), "--model", "lambert", "--out", str(tmp_path / "maps"),
+                  "--no-index"]):
+        assert main([*argv, "--quiet"]) == 1
+        err = capsys.readouterr().err
+        assert f"relight {argv[0]}: error: " in err and f"chunk file {name} is missing" in err, err
+        assert "Traceback" not in err
+    assert not (tmp_path / "back").exists() and not (tmp_path / "maps" / "albedo.exr").exists()
