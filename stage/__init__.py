@@ -23,6 +23,7 @@ from ._camera import orthographic as orthographic
 from ._camera import save_cameras as save_cameras
 from ._camera import undistort as undistort
 from ._capture import Capture as Capture
+from ._files import parse_json as parse_json
 from ._files import read_json as read_json
 from ._files import read_light_table as read_light_table
 from ._forward import incident_light as incident_light
@@ -67,6 +68,7 @@ from ._project_texels import PROJECTION_REJECTIONS as PROJECTION_REJECTIONS
 from ._project_texels import TexelProjection as TexelProjection
 from ._project_texels import bilinear_taps as bilinear_taps
 from ._project_texels import project_texels as project_texels
+from ._rig import MAX_LIGHTS as MAX_LIGHTS
 from ._rig import Gonioreflectometer as Gonioreflectometer
 from ._rig import Rig as Rig
 from ._rig import calibrate as calibrate

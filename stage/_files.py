@@ -13,7 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_json", "read_light_table"]
+__all__ = ["parse_json", "read_json", "read_light_table"]
+
+
+def parse_json(data: str | bytes, where, error: type[ValueError] = ValueError):
+    """The JSON document ``data`` (text, or UTF-8 bytes as read from a file), parsed: the one parse of every JSON
+    file a user or another run may have written. Raises ``error`` (a ValueError class) naming ``where`` when it is
+    not valid JSON or not UTF-8, including the two failures ``json`` does not report as a decode error: an
+    integer of more than 4300 digits (ValueError) and nesting deeper than the interpreter's recursion limit
+    (RecursionError, which would otherwise escape as a raw traceback)."""
+    try:
+        return json.loads(data.decode("utf-8") if isinstance(data, bytes) else data)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise error(f"{where}: not valid JSON ({type(exc).__name__}: {str(exc)[:200]})") from None
 
 
 def read_json(path: str | os.PathLike, what: str = "JSON file", error: type[ValueError] = ValueError):
@@ -23,11 +35,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file", error: type[Valu
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing ({what})")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        # ValueError: an integer of more than 4300 digits; RecursionError: nesting too deep to parse.
-        raise error(f"{path}: not valid JSON ({type(exc).__name__}: {str(exc)[:200]})") from exc
+    return parse_json(path.read_bytes(), path, error)
 
 
 def read_light_table(path: str | os.PathLike, what: str = "light table", cols: int = 3,

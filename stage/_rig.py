@@ -18,7 +18,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
-from scipy.spatial import SphericalVoronoi
+from scipy.spatial import SphericalVoronoi, cKDTree
 
 from brdf import fibonacci_sphere as brdf_fibonacci_sphere
 from brdf import safe_normalize
@@ -32,6 +32,19 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 # Two lights closer than this (as directions from the centre) cannot be told
 # apart by a Voronoi partition; scipy's construction also breaks down there.
 _COINCIDENT_RAD = 1e-6
+# The most lights a rig may have: 190 x the Light Stage X's 346, beyond any built stage or dome, and small enough
+# that a rig's per-light arrays, its Voronoi partition and a capture's light axis stay bounded; a count from a
+# user (``dome:N``, a rig file) is checked against it before anything is allocated.
+MAX_LIGHTS = 65536
+
+
+def check_light_count(n: int, where: str = "rig") -> int:
+    """``n`` as an int when it is a light count a rig may have (1..``MAX_LIGHTS``); else ValueError naming
+    ``where`` and the limit. Called before a rig's arrays are built, so a wrong count costs nothing."""
+    n = int(n)
+    if not 1 <= n <= MAX_LIGHTS:
+        raise ValueError(f"{where}: {n} lights; a rig has 1 to {MAX_LIGHTS} (stage.MAX_LIGHTS)")
+    return n
 
 
 def voronoi_solid_angles(directions: np.ndarray) -> np.ndarray:
@@ -51,11 +64,14 @@ def voronoi_solid_angles(directions: np.ndarray) -> np.ndarray:
         raise ValueError(f"rig directions must have shape [L, 3], got {d.shape}")
     if d.shape[0] < 4:
         raise ValueError(f"a spherical Voronoi partition needs at least 4 lights, got {d.shape[0]}")
+    check_light_count(d.shape[0], "rig directions")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    gram = d @ d.T
-    np.fill_diagonal(gram, -1.0)
-    i, j = np.unravel_index(np.argmax(gram), gram.shape)
-    if gram[i, j] > np.cos(_COINCIDENT_RAD):
+    # The closest pair by a k-d tree: O(L log L) time and O(L) memory (an L x L Gram matrix is 32 GB at 65536).
+    dist, nearest = cKDTree(d).query(d, k=2)
+    i = int(np.argmin(dist[:, 1]))
+    j = int(nearest[i, 1])
+    if dist[i, 1] < 2.0 * np.sin(_COINCIDENT_RAD / 2.0):  # the chord of _COINCIDENT_RAD
+        i, j = min(i, j), max(i, j)
         raise ValueError(f"rig has coincident lights: lights {i} and {j} point the same way")
     # Lights on one great circle (a gonioreflectometer arc, a ring): the Voronoi
     # cells are lunes from pole to pole, of area 2 x their angular width.
@@ -99,6 +115,7 @@ class Rig(eqx.Module):
     def __check_init__(self):
         if self.position.ndim != 2 or self.position.shape[-1] != 3 or self.position.shape[0] == 0:
             raise ValueError(f"Rig.position must have shape [L, 3] with L >= 1, got {self.position.shape}")
+        check_light_count(self.position.shape[0], "Rig.position")
         if self.intensity.shape[0] != self.position.shape[0] or self.intensity.ndim != 2:
             raise ValueError(
                 f"Rig.intensity must have shape [L, C] with L = {self.position.shape[0]}, got {self.intensity.shape}"
@@ -356,6 +373,7 @@ def fibonacci_sphere(n: int, radius_mm: float = 1000.0, near_field: bool = False
     n = int(n)
     if n < 4:
         raise ValueError(f"a Fibonacci sphere rig needs n >= 4 lights, got {n}")
+    check_light_count(n, "fibonacci_sphere")
     dirs = brdf_fibonacci_sphere(n, axis=1, hemisphere=hemisphere)
     inten = irradiance * (radius_mm**2 if near_field else 1.0)
     return make_rig(dirs * radius_mm, inten, near_field=near_field)

@@ -48,7 +48,7 @@ import numpy as np
 
 from ._files import read_json, read_light_table
 from ._mesh import LENGTH_UNITS_MM, MAX_COORDINATE_MM
-from ._rig import _LSX_DUPLICATE_ROW, _LSX_DUPLICATED_ROW, _LSX_ORIGINAL_VALUE_CM, Rig, calibrate
+from ._rig import _LSX_DUPLICATE_ROW, _LSX_DUPLICATED_ROW, _LSX_ORIGINAL_VALUE_CM, Rig, calibrate, check_light_count
 from ._rig_io import position_array, position_key, rig_from_dict
 
 __all__ = ["AXES", "POSITION_UNITS", "load_rig_file", "rig_file_subsets", "up_rotation"]
@@ -108,14 +108,22 @@ def _table(path: Path) -> np.ndarray:
         try:
             # Memory-mapped first: numpy checks the declared shape against the file's size, so a corrupt
             # header declaring 10^12 rows is refused instead of allocated (np.load would allocate it).
-            arr = np.array(np.load(path, mmap_mode="r", allow_pickle=False))
+            mapped = np.load(path, mmap_mode="r", allow_pickle=False)
+            if mapped.ndim >= 1:
+                check_light_count(mapped.shape[0], f"{path}")  # before a row is read
+            arr = np.array(mapped)
         except MemoryError:
             raise
-        except Exception as err:  # ValueError, OSError, EOFError, SyntaxError (the header is a Python literal)
+        except ValueError as err:
+            if "stage.MAX_LIGHTS" in str(err):
+                raise
+            raise ValueError(f"{path}: not a readable .npy array ({type(err).__name__}: {err})") from None
+        except Exception as err:  # OSError, EOFError, SyntaxError (the header is a Python literal)
             raise ValueError(f"{path}: not a readable .npy array ({type(err).__name__}: {err})") from None
     else:
         arr = read_light_table(path, "light positions")
     arr = np.asarray(arr)
+    check_light_count(len(arr), f"{path}")
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0 or not np.issubdtype(arr.dtype, np.number):
         raise ValueError(f"{path}: light positions must be a numeric [L, 3] array, got shape {arr.shape}")
     arr = arr.astype(np.float64)
@@ -203,6 +211,7 @@ def _records(doc, where: str, units: str | None, up: str | None) -> dict:
     lights = doc if isinstance(doc, list) else doc["lights"]
     if not isinstance(lights, list) or not lights:
         raise ValueError(f"{where}: field 'lights' must be a non-empty list of light records")
+    check_light_count(len(lights), f"{where}: field 'lights'")
     for i, rec in enumerate(lights):
         if not isinstance(rec, Mapping):
             raise ValueError(f"{where}: light {i} must be an object with 'position' or 'direction', got "

@@ -27,7 +27,7 @@ import numpy as np
 from ._atomic import atomic_write_text
 from ._files import read_json
 from ._mesh import MAX_COORDINATE_MM
-from ._rig import Rig, make_rig
+from ._rig import Rig, check_light_count, make_rig
 
 __all__ = ["load_rig", "rig_from_dict", "rig_to_dict", "save_rig"]
 
@@ -86,6 +86,7 @@ def rig_from_dict(doc: object, where: str = "rig") -> Rig:
     if not isinstance(near, (bool, np.bool_)) and near not in (0, 1):
         raise ValueError(f"{where}: field 'near_field' must be true or false, got {near!r}")
     pos = position_array(doc, key, where)
+    check_light_count(len(pos), f"{where}: field '{key}'")
     if key == "directions":
         norm = np.linalg.norm(pos, axis=1, keepdims=True)
         if not np.all(norm > 0):

@@ -128,6 +128,12 @@ def main(argv=None) -> int:
             msg = f"{exc.filename}: {msg}"
         print(f"relight {args.command}: error: {msg}", file=sys.stderr)
         return 1
+    except MemoryError as exc:
+        # An allocation beyond this machine's memory (numpy says how much it asked for); the stated limits
+        # (docs/reliability.md, "Sizes and counts") bound each input, not their product.
+        print(f"relight {args.command}: error: out of memory ({exc or 'no detail'}); lower the sizes asked for "
+              "(--resolution, --image-size, lights, cameras, --block)", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"relight {args.command}: interrupted", file=sys.stderr)
         return 130

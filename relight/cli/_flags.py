@@ -56,10 +56,23 @@ def finish_parser(p: argparse.ArgumentParser, run) -> None:
     p.set_defaults(func=guarded(run))
 
 
+# The largest value of each size or count flag, checked (by :func:`at_least`) before anything is allocated: a
+# typo of a few zeros ends in one line naming the flag, not in minutes of work and an out-of-memory kill
+# (docs/reliability.md, "Sizes and counts"). Texel grid side 8192: a 64 M-texel map set, 8K being the largest
+# texture a face pipeline delivers; image side 16384: stage.MAX_CAMERA_PIXELS; 64 cameras: the most any
+# multi-view stage has; 720 frames: a turntable every half degree; 8 BRDF / subsurface alternations: the fit
+# settles in 2 (docs/RESULTS.md); a 4096 px viewer sweep.
+LIMITS = {"--resolution": 8192, "--image-size": 16384, "--cameras": 64, "--frames": 720, "--passes": 8,
+          "--size": 4096}
+
+
 def at_least(flag: str, value: int, minimum: int) -> None:
-    """Refuse an integer flag below ``minimum`` (a CLIError naming the flag and the value)."""
+    """Refuse an integer flag below ``minimum`` or above its stated limit (``LIMITS``): a CLIError naming the
+    flag, the value and the bound."""
     if value < minimum:
         raise CLIError(f"{flag} {value}: must be at least {minimum}")
+    if flag in LIMITS and value > LIMITS[flag]:
+        raise CLIError(f"{flag} {value}: must be at most {LIMITS[flag]} (relight.cli's stated limit)")
 
 
 def add_index_flag(p: argparse.ArgumentParser) -> None:

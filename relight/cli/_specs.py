@@ -27,6 +27,8 @@ def parse_rig(spec: str, units: str | None = None, up: str | None = None) -> tup
             raise CLIError(f"--rig {spec}: dome:N needs an integer light count N") from None
         if n < 4:
             raise CLIError(f"--rig {spec}: a dome needs at least 4 lights")
+        if n > stage.MAX_LIGHTS:
+            raise CLIError(f"--rig {spec}: a dome has at most {stage.MAX_LIGHTS} lights (stage.MAX_LIGHTS)")
         for sub in range(6):
             if 10 * 4**sub + 2 == n:
                 return stage.geodesic_dome(sub), f"geodesic dome, {n} distant lights (subdivision {sub})"

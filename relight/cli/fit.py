@@ -224,8 +224,7 @@ def _index_sweeps(tmp: Path, r, envmap: Path):
 def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
     """CLIError on --subsurface / --regions / --eta / --passes that do not go together or with this kind of
     input (subsurface fitting takes texel-space captures)."""
-    if args.passes < 1:
-        raise CLIError(f"--passes {args.passes}: must be >= 1")
+    at_least("--passes", args.passes, 1)
     if args.subsurface == "off" and args.passes != 1:
         raise CLIError("--passes: needs --subsurface region|texel|auto")
     if args.subsurface == "off" and (args.regions is not None or args.eta is not None):

@@ -31,6 +31,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+import stage
+
 from ..results import atomic_write_bytes, atomic_write_text
 from . import _driver as _d
 from ._options import as_options
@@ -142,7 +144,7 @@ def _read_manifest(folder: Path) -> dict | None:
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_text())
+        return stage.parse_json(path.read_bytes(), path)
     except (OSError, ValueError) as err:
         raise PartsFingerprintError(f"{path}: not a readable result-set manifest ({err})") from None
 

@@ -62,12 +62,13 @@ edit) is refused too (an ``ImageFormatError`` from the
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+
+import stage
 
 from ..image._preview import dilate
 from ..materials._maps import MODELS, MaterialMaps, material_maps
@@ -163,8 +164,8 @@ def is_map_set(folder: str | os.PathLike) -> bool:
     if not p.is_file():
         return False
     try:
-        return json.loads(p.read_text()).get("format") == FORMAT
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return stage.parse_json(p.read_bytes(), p).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
         return False
 
 

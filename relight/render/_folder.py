@@ -13,7 +13,6 @@ settings.json records. The helpers it uses are public: :func:`input_kind`, :func
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from pathlib import Path
@@ -104,8 +103,8 @@ def input_kind(path: str | os.PathLike) -> str:
 
 def _json(path: Path):
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError, UnicodeDecodeError):
+        return stage.parse_json(path.read_bytes(), path)
+    except (OSError, ValueError):
         return None
 
 

@@ -3,9 +3,10 @@ sets had manifests (its ``settings.json`` names the command)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
+
+import stage
 
 __all__ = ["earlier_output"]
 
@@ -25,8 +26,8 @@ def earlier_output(command: str, legacy: Callable[[Path], bool] | None = None) -
     """
     def own(folder: Path) -> bool:
         try:
-            doc = json.loads((Path(folder) / SETTINGS).read_text())
-        except (OSError, ValueError, UnicodeDecodeError):
+            doc = stage.parse_json((Path(folder) / SETTINGS).read_bytes(), SETTINGS)
+        except (OSError, ValueError):
             doc = None
         if isinstance(doc, dict) and doc.get("command") == f"relight {command}":
             return True

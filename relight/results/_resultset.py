@@ -56,6 +56,8 @@ import socket
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
+import stage
+
 from ._atomic import _umask, atomic_write_text
 from ._errors import ForeignFolderError, NoSpaceError, ResultSetError, _err, edited_hint, no_space_error
 from ._format import format_version
@@ -173,8 +175,8 @@ def is_result_set(folder: str | os.PathLike, kind: str | None = None) -> bool:
     """
     p = Path(folder) / MANIFEST
     try:
-        doc = json.loads(p.read_text())
-    except (OSError, ValueError, UnicodeDecodeError):
+        doc = stage.parse_json(p.read_bytes(), p)
+    except (OSError, ValueError):
         return False
     return isinstance(doc, dict) and doc.get("format") == FORMAT and (kind is None or doc.get("kind") == kind)
 
@@ -255,7 +257,7 @@ class ResultSet:
         """
         self.unchanged()
         path = self.folder / MANIFEST
-        doc = json.loads(path.read_text())
+        doc = stage.parse_json(path.read_bytes(), path, ResultSetError)
         files = doc.setdefault("files", {})
         for name in paths:
             rel = self._rel(name)
@@ -298,10 +300,7 @@ def open_result_set(folder: str | os.PathLike, kind: str | Sequence[str] | None 
     if not path.is_file():
         raise ResultSetError(f"{folder}: no {MANIFEST}, so not a complete result set (an interrupted write, or not "
                              "written by this version of relight); rerun the command that made it")
-    try:
-        doc = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as err:
-        raise ResultSetError(f"{path}: not valid JSON ({err})") from None
+    doc = stage.parse_json(path.read_bytes(), path, ResultSetError)
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ResultSetError(f"{path}: not a relight result-set manifest")
     format_version(doc, path, VERSION, error=ResultSetError)

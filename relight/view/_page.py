@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+import stage
+
 from ._markdown import markdown_html
 from ._sweep import Sweep
 
@@ -168,7 +170,7 @@ def _truth_pair(folder: Path) -> tuple[Path | None, Path | None]:
         return folder / "truth", folder / "maps"
     if is_map_set(folder):
         try:
-            meta = (json.loads((folder / "maps.json").read_text()).get("metadata") or {})
+            meta = (stage.parse_json((folder / "maps.json").read_bytes(), "maps.json").get("metadata") or {})
         except (OSError, ValueError, AttributeError):
             meta = {}
         cap = meta.get("capture")
@@ -298,8 +300,8 @@ def _checked(sweeps) -> list[Sweep]:
 def _read_settings(folder: Path) -> dict:
     data, _ = _read_inside(folder, folder / "settings.json", MAX_TEXT_BYTES)
     try:
-        doc = json.loads(data) if data is not None else {}
-    except (ValueError, UnicodeDecodeError, RecursionError):
+        doc = stage.parse_json(data, "settings.json") if data is not None else {}
+    except ValueError:
         return {}
     return doc if isinstance(doc, dict) else {}
 

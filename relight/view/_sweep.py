@@ -18,7 +18,6 @@ and makes the sweeps it can cheaply, with a note saying why when it cannot.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -186,8 +185,8 @@ def frames_sweep(paths, angles_deg, label: str = "rendered frames") -> Sweep:
 
 def _json(path: Path):
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError, UnicodeDecodeError):
+        return stage.parse_json(path.read_bytes(), path)
+    except (OSError, ValueError):
         return None
 
 

@@ -1,0 +1,114 @@
+"""The hostile-input suite (issue 29): inputs a careless user or an attacker makes, each class held by at least one
+case, run by the installed command line in one process under a 3 GiB address-space limit (``resource.setrlimit``),
+so that a regression that allocates what a size asks for fails its case instead of taking the machine down.
+
+Classes held here: sizes and counts from flags and files checked against stated limits before any allocation
+(docs/reliability.md, "Sizes and counts"); JSON nested past the parser's recursion limit, in a manifest of --out and
+in a viewed folder; an out-of-memory failure reported as one line. Held elsewhere: names from files as path
+components (test_cli_photos.py), the viewer's escaping and embed rule (test_view_escaping.py), store chunks
+(test_capture_store.py), photo exposure overflow (test_cli_photos.py)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from relight.cli import main
+
+LIMIT_BYTES = 3 << 30
+
+# One process for every case: the limit is set first, then each argv runs through relight.cli.main with its
+# stderr captured; one JSON line per case (exit code, stderr).
+_RUNNER = """
+import contextlib, io, json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit}))
+from relight.cli import main
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            rc = main(argv)
+        except BaseException as exc:  # a raw exception is a failure of the case, reported as such
+            rc, err = 99, io.StringIO(f"RAW {{type(exc).__name__}}: {{exc}}")
+    print(json.dumps({{"argv": argv, "rc": rc, "err": err.getvalue()}}), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hostile")
+    # A rig table of 70000 directions (beyond stage.MAX_LIGHTS): the Voronoi partition of 2 million asked for
+    # 29 TiB; this one must be refused by its count.
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(70000, 3))
+    np.save(root / "big_rig.npy", d / np.linalg.norm(d, axis=1, keepdims=True))
+    # An --out holding a relight-set.json nested 100000 deep (json raised RecursionError, a raw traceback).
+    (root / "deep_out").mkdir()
+    (root / "deep_out" / "relight-set.json").write_text("[" * 100000 + "]" * 100000)
+    # A viewed folder whose settings.json nests past the parser, beside a report.md holding NUL bytes.
+    (root / "view").mkdir()
+    (root / "view" / "settings.json").write_text('{"a":' * 100000 + "1" + "}" * 100000)
+    (root / "view" / "report.md").write_text("# report\n\x00\x00 | a\n|---|\n")
+    sim = ["simulate", "--resolution", "8", "--image-size", "16", "--quiet", "--no-index"]
+    cases = {
+        "dome": [*sim, "--rig", "dome:1000000000", "--out", str(root / "s1")],
+        "resolution": ["simulate", "--rig", "dome:12", "--resolution", "100000", "--quiet", "--out", str(root / "s2")],
+        "image_size": [*sim, "--rig", "dome:12", "--image-size", "1000000", "--out", str(root / "s3")],
+        "rig_file": [*sim, "--rig", str(root / "big_rig.npy"), "--rig-units", "directions", "--out",
+                     str(root / "s4")],
+        "cameras": ["demo", "--cameras", "100000", "--quiet", "--out", str(root / "d")],
+        "frames": ["view", str(root / "view"), "--frames", "100000"],
+        "deep_out": [*sim, "--rig", "dome:12", "--out", str(root / "deep_out")],
+        "deep_view": ["view", str(root / "view"), "--frames", "2", "--size", "32"],
+    }
+    code = _RUNNER.format(limit=LIMIT_BYTES)
+    run = subprocess.run([sys.executable, "-c", code, json.dumps(list(cases.values()))], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    results = [json.loads(line) for line in run.stdout.splitlines() if line.startswith("{")]
+    assert [r["argv"] for r in results] == list(cases.values()), run.stderr[-3000:]
+    return root, dict(zip(cases, results, strict=True))
+
+
+@pytest.mark.parametrize("case, message", [
+    ("dome", "--rig dome:1000000000: a dome has at most 65536 lights"),
+    ("resolution", "--resolution 100000: must be at most 8192"),
+    ("image_size", "--image-size 1000000: must be at most 16384"),
+    ("rig_file", "70000 lights; a rig has 1 to 65536 (stage.MAX_LIGHTS)"),
+    ("cameras", "--cameras 100000: must be at most 64"),
+    ("frames", "--frames 100000: must be at most 720"),
+    ("deep_out", "not the output of an earlier `relight simulate`"),
+])
+def test_a_size_or_file_beyond_its_limit_is_one_named_error(hostile, case, message):
+    """Each ends with exit 1 and the command's one-line error naming the flag or file and the limit, under the
+    memory limit, having written nothing."""
+    root, results = hostile
+    r = results[case]
+    assert r["rc"] == 1, r
+    assert r["err"].startswith(f"relight {r['argv'][0]}: error: ") and message in r["err"], r["err"]
+    assert "Traceback" not in r["err"] and len(r["err"].strip().splitlines()) == 1, r["err"]
+    assert not any((root / n).exists() for n in ("s1", "s2", "s3", "s4", "d"))
+
+
+def test_a_viewed_folder_of_hostile_files_still_gets_its_page(hostile):
+    """settings.json nested past the parser is read as no settings, report.md's NUL bytes are text: the page is
+    written (exit 0), not an error blaming index.html."""
+    root, results = hostile
+    assert results["deep_view"]["rc"] == 0, results["deep_view"]
+    assert (root / "view" / "index.html").is_file()
+
+
+def test_running_out_of_memory_is_one_line(monkeypatch, capsys):
+    """An allocation beyond the machine (numpy's MemoryError, which says how much it asked for) ends the command
+    with one line and exit 1, not a traceback."""
+    from relight.cli import info
+
+    def boom(args):
+        raise MemoryError("Unable to allocate 7.45 GiB for an array with shape (1000000000,) and data type float64")
+
+    monkeypatch.setattr(info, "run", boom)
+    assert main(["info", "."]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("relight info: error: out of memory (Unable to allocate 7.45 GiB") and "--resolution" in err
