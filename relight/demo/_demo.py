@@ -62,7 +62,7 @@ class Demo:
 
         from ..fitting import write_report
         from ..image import truth_fit_figure
-        from ..io import mesh_spec, texture_set, write_exr, write_png, write_texture_set
+        from ..io import check_finite_output, mesh_spec, texture_set, write_exr, write_png, write_texture_set
         from ..results import atomic_write_text
 
         folder, t0 = Path(folder), time.perf_counter()
@@ -73,8 +73,9 @@ class Demo:
         meta = {"source": "relight demo", "cameras": [stage.camera_to_dict(self.camera, "relit")], "rig": None}
         write_texture_set(folder / "maps", texture_set(self.maps, self.surface, surface_info=info, metadata=meta))
         write_texture_set(folder / "truth", texture_set(self.truth, self.surface, surface_info=info, metadata=meta))
-        write_exr(folder / "relit_truth.exr", self.relit_truth)
-        write_exr(folder / "relit_fit.exr", self.relit_fit)
+        for name, image in (("relit_truth.exr", self.relit_truth), ("relit_fit.exr", self.relit_fit)):
+            check_finite_output(image, folder / name, "the relit image")
+            write_exr(folder / name, image)
         write_png(folder / "preview.png", truth_fit_figure(self.mesh, self.surface, self.camera, self.truth,
                                                            self.maps, self.relit_truth, self.relit_fit,
                                                            self.covered))

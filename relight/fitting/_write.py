@@ -44,7 +44,14 @@ def write_fit_maps(folder: str | os.PathLike, maps, surface, *, cameras, rig, me
 
     from ..export import write_mitsuba_scene
     from ..image import PREVIEW_MIN_PX, texture_view
-    from ..io import texture_set, write_exr, write_map_previews, write_preview, write_texture_set_files
+    from ..io import (
+        check_finite_output,
+        texture_set,
+        write_exr,
+        write_map_previews,
+        write_preview,
+        write_texture_set_files,
+    )
     from ..results import writing
 
     folder = Path(folder)
@@ -66,6 +73,7 @@ def write_fit_maps(folder: str | os.PathLike, maps, surface, *, cameras, rig, me
                       exposure=0.0, curve="none", min_px=PREVIEW_MIN_PX)
     views = texture_view(mesh, cam, {"albedo": textures.albedo, "roughness": textures.alpha[..., :1]})
     for name, img in views.items():
+        check_finite_output(img, folder / f"{name}_view.exr", f"the {name} view")
         with writing(folder / f"{name}_view.exr"):
             write_exr(folder / f"{name}_view.exr", img)
         write_preview(folder / f"{name}_view.png", img, exposure=0.0, curve="none")

@@ -24,6 +24,7 @@ from ._errors import MAX_IMAGE_PIXELS as MAX_IMAGE_PIXELS
 from ._errors import MAX_PATH_CHARS as MAX_PATH_CHARS
 from ._errors import MAX_RADIANCE as MAX_RADIANCE
 from ._errors import ImageFormatError as ImageFormatError
+from ._errors import check_finite_output as check_finite_output
 from ._errors import check_radiance as check_radiance
 from ._exr import ExrPart as ExrPart
 from ._exr import exr_header as exr_header
@@ -143,6 +144,7 @@ __all__ = [
     "TexelMaps",
     "UNSEEN_FILL",
     "TextureSet",
+    "check_finite_output",
     "check_radiance",
     "exr_header",
     "head_skin_textures",

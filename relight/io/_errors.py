@@ -18,8 +18,8 @@ import numpy as np
 from ..results import ResultSetError
 from ..results import format_version as _format_version
 
-__all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_image_size",
-           "check_radiance", "file_name", "path_inside", "path_template", "set_refusal_as"]
+__all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_finite_output",
+           "check_image_size", "check_radiance", "file_name", "path_inside", "path_template", "set_refusal_as"]
 
 # The largest image a reader decodes: 2^28 pixels (16384 x 16384, 3 GiB as float32 RGB). Readers check a
 # file's declared size against it before allocating anything, so a corrupt or hostile header (an HDR saying
@@ -169,6 +169,23 @@ def check_image_size(path: str | os.PathLike, height: int, width: int, channels:
     if h * w > MAX_IMAGE_PIXELS:
         raise ImageFormatError(f"{path}: {what} declares {w}x{h} pixels ({channels} channel(s)), more than the "
                                f"reader's limit of {MAX_IMAGE_PIXELS} pixels (relight.io._errors.MAX_IMAGE_PIXELS)")
+
+
+def check_finite_output(values: np.ndarray, path: str | os.PathLike, what: str = "image") -> None:
+    """Refuse to write an output image holding NaN or Inf: ImageFormatError naming the file, the count and the
+    first offending index. Every radiance image a command writes (relit images, previews, photographs, the demo's
+    relit pair) passes through it, so a non-finite pixel ends the command with one line instead of an EXR that
+    poisons whatever reads it (the reported case: a photo capture's ``"exposure": 1e-300`` rendered relit.exr with
+    2091 NaN pixels, exit 0)."""
+    values = np.asarray(values)
+    if not np.issubdtype(values.dtype, np.floating):
+        return
+    bad = ~np.isfinite(values)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ImageFormatError(f"{path}: {what} has {int(bad.sum())} NaN/Inf values (first at index {idx}); not "
+                               "written. An input beyond range (an exposure, gain or intensity near 0 or huge) or "
+                               "a bug: check the inputs, and report it if they are sound")
 
 
 def check_radiance(values: np.ndarray, path: str | os.PathLike, what: str = "radiance") -> None:

@@ -260,9 +260,13 @@ def _channels(C: int) -> list[str]:
 
 
 def _write_exr(path: Path, image: np.ndarray, **kw) -> None:
-    from ..io import write_exr  # looked up at each call: a test may replace relight.io.write_exr (a full disk)
+    from ..io import (
+        check_finite_output,
+        write_exr,  # looked up at each call: a test may replace relight.io.write_exr (a full disk)
+    )
     from ..results import writing
 
+    check_finite_output(image, path, "the relit image")
     with writing(path):
         write_exr(path, image, **kw)
 
@@ -271,9 +275,10 @@ def _write_preview(path: Path, rgb: np.ndarray, cov: np.ndarray, exposure: float
     """A PNG preview: ``rgb`` tone-mapped at ``exposure``; with ``alpha``, RGBA, the colour
     unpremultiplied (PNG's alpha is straight) and A the coverage."""
     from ..image import to_uint8, tonemap
-    from ..io import write_png
+    from ..io import check_finite_output, write_png
     from ..results import writing
 
+    check_finite_output(rgb, path, "the relit image")
     if not alpha:
         from ..io import write_preview
 
@@ -400,11 +405,8 @@ def render_folder(src: str | os.PathLike, envmap: str | os.PathLike | None, out:
         views, cameras, label, subsurface, mesh, source = _map_set_views(src, env, angles, method, rig_description,
                                                                          camera, image_size, progress)
     seconds = time.perf_counter() - t0
-    for k, (frames, _, _) in enumerate(views):
-        bad = [i for i, f in enumerate(frames) if not np.all(np.isfinite(f))]
-        if bad:
-            where = "" if len(views) == 1 else f" (camera {k})"
-            raise ValueError(f"{src}: frame(s) {bad}{where} came out with NaN or Inf pixels; nothing was written")
+    # A non-finite frame is refused as it is written (_write_exr, _write_preview: check_finite_output); the
+    # set is committed whole or not at all, so nothing of it is left.
     # One exposure for every frame and camera, so they compare; metered on the subject, not the background.
     given = exposure
     if exposure is None:

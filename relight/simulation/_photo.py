@@ -10,7 +10,7 @@ from pathlib import Path
 import brdf
 import stage
 
-from ..io import write_exr, write_photo_capture, write_preview
+from ..io import check_finite_output, write_exr, write_photo_capture, write_preview
 from ..materials import demo_material
 from ._capture import MATERIAL, UNITS, SimulatedCapture, noise_record
 
@@ -59,6 +59,7 @@ def simulate_photo_capture(out: str | os.PathLike, mesh: stage.Mesh, rig: stage.
     t0 = time.perf_counter()
     write_photo_capture(out, images, rig, cameras, half=half, masks=masks, metadata=meta)
     all_on = images[0].sum(axis=0)
+    check_finite_output(all_on, out / "preview_all_lights.exr", "the all-lights preview")
     write_exr(out / "preview_all_lights.exr", all_on)
     write_preview(out / "preview_all_lights.png", all_on)
     times["write_s"] = time.perf_counter() - t0

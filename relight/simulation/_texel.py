@@ -19,6 +19,7 @@ from ..io import (
     LIGHT_CHUNK,
     CaptureFolderWriter,
     CaptureStoreWriter,
+    check_finite_output,
     mean_free_path_at,
     store_blocks,
     write_exr,
@@ -83,6 +84,7 @@ def _write_truth(out: Path, mesh, camera, surface, all_on, maps, surface_info, r
     write_map_previews(out / "truth", grid(maps.rho_d), grid(maps.rho_s), grid(np.asarray(maps.alpha)[:, :1]))
     open_result_set(out / "truth").add("albedo.png", "specular.png", "roughness.png")
     view = texture_view(mesh, camera, {"all_lights": dilate(all_on.reshape(H, W, -1), covered)})["all_lights"]
+    check_finite_output(view, out / "preview_all_lights.exr", "the all-lights preview")
     write_exr(out / "preview_all_lights.exr", view)
     write_preview(out / "preview_all_lights.png", view)
 

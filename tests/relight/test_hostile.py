@@ -112,3 +112,30 @@ def test_running_out_of_memory_is_one_line(monkeypatch, capsys):
     assert main(["info", "."]) == 1
     err = capsys.readouterr().err
     assert err.startswith("relight info: error: out of memory (Unable to allocate 7.45 GiB") and "--resolution" in err
+
+
+def test_a_non_finite_relit_image_is_not_written(tmp_path, monkeypatch, capsys):
+    """The finite-output rule (issue 29, item 6, the class): a relit frame holding a NaN (here injected after the
+    renderer, standing for any input or bug that makes one) ends `relight render` with one line naming relit.exr
+    and the count, exit 1, and no relit.exr or relit.png is written."""
+    from relight.render import _folder
+
+    cap = tmp_path / "cap"
+    assert main(["simulate", "--rig", "dome:12", "--resolution", "8", "--image-size", "16", "--quiet", "--no-index",
+                 "--out", str(cap)]) == 0
+    original = _folder._capture_views
+
+    def poisoned(*a, **k):
+        views, *rest = original(*a, **k)
+        frames = views[0][0]
+        frames[0] = np.array(frames[0], np.float32)
+        frames[0][3, 4, 1] = np.nan
+        return (views, *rest)
+
+    monkeypatch.setattr(_folder, "_capture_views", poisoned)
+    capsys.readouterr()
+    assert main(["render", str(cap), "--out", str(tmp_path / "relit"), "--image-size", "16", "--no-index",
+                 "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "relit.exr: the relit image has 1 NaN/Inf values (first at index (3, 4, 1)); not written" in err, err
+    assert not list(tmp_path.glob("relit/relit.*"))
