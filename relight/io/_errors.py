@@ -19,7 +19,8 @@ from ..results import ResultSetError
 from ..results import format_version as _format_version
 
 __all__ = ["MAX_IMAGE_PIXELS", "MAX_PATH_CHARS", "MAX_RADIANCE", "ImageFormatError", "check_finite_output",
-           "check_image_size", "check_radiance", "file_name", "path_inside", "path_template", "set_refusal_as"]
+           "check_image_size", "check_radiance", "existing_file", "file_name", "path_inside", "path_template",
+           "set_refusal_as"]
 
 # The largest image a reader decodes: 2^28 pixels (16384 x 16384, 3 GiB as float32 RGB). Readers check a
 # file's declared size against it before allocating anything, so a corrupt or hostile header (an HDR saying
@@ -169,6 +170,26 @@ def check_image_size(path: str | os.PathLike, height: int, width: int, channels:
     if h * w > MAX_IMAGE_PIXELS:
         raise ImageFormatError(f"{path}: {what} declares {w}x{h} pixels ({channels} channel(s)), more than the "
                                f"reader's limit of {MAX_IMAGE_PIXELS} pixels (relight.io._errors.MAX_IMAGE_PIXELS)")
+
+
+def existing_file(path: str | os.PathLike, what: str, missing: type[Exception] = FileNotFoundError) -> Path:
+    """``path`` as a Path when it is a regular file (links followed). Nothing there: ``missing`` (FileNotFoundError
+    by default) saying "no such {what}". Something that is not a regular file (a folder, a FIFO, a device, a
+    socket): ImageFormatError saying what it is, since reading it would fail, hang (a FIFO) or never end
+    (/dev/zero). One rule for every image reader (issue 29: a FIFO given as an env map was "no such HDR file")."""
+    import stat
+
+    p = Path(path)
+    if p.is_file():
+        return p
+    try:
+        mode = p.stat().st_mode
+    except OSError:
+        raise missing(f"{p}: no such {what}") from None
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "not a regular file")
+    raise ImageFormatError(f"{p}: is {kind}, not a regular file ({what} expected)")
 
 
 def check_finite_output(values: np.ndarray, path: str | os.PathLike, what: str = "image") -> None:

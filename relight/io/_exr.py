@@ -29,7 +29,7 @@ import numpy as np
 import OpenEXR
 
 from ..results import atomic_path
-from ._errors import ImageFormatError, check_image_size
+from ._errors import ImageFormatError, check_image_size, existing_file
 
 __all__ = [
     "ExrPart",
@@ -171,8 +171,7 @@ def _check_sizes(f: OpenEXR.File, path: Path) -> None:
 
 
 def _open(path: Path, header_only: bool = False) -> OpenEXR.File:
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such EXR file")
+    existing_file(path, "EXR file")
     if not OpenEXR.isOpenExrFile(str(path)):
         with open(path, "rb") as fh:
             magic = fh.read(4)

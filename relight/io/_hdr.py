@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..results import atomic_write_bytes
-from ._errors import ImageFormatError, check_image_size
+from ._errors import ImageFormatError, check_image_size, existing_file
 
 __all__ = ["RGBE_MAX", "read_hdr", "read_hdr_header", "write_hdr"]
 
@@ -172,8 +172,7 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
     pixel data.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such HDR file")
+    existing_file(path, "HDR file")
     data = path.read_bytes()
     _, (slow, fast), pos = _parse_header(data, path)
     n_lines, width = slow[2], fast[2]

@@ -10,6 +10,7 @@ import numpy as np
 import stage
 
 from ..image import sample_texture
+from ._errors import existing_file
 from ._exr import read_exr
 
 
@@ -29,8 +30,7 @@ def read_mean_free_path(path: str | os.PathLike) -> np.ndarray:
             negative values.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such mean-free-path EXR")
+    existing_file(path, "mean-free-path EXR")
     mfp = np.asarray(read_exr(path), np.float64)
     if mfp.ndim == 2:
         mfp = mfp[..., None]

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..results import atomic_write_bytes
-from ._errors import ImageFormatError, check_image_size
+from ._errors import ImageFormatError, check_image_size, existing_file
 
 __all__ = ["read_pfm", "write_pfm"]
 
@@ -38,8 +38,7 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     them). Raises ``ImageFormatError`` naming the file on a bad magic or header,
     a size above ``MAX_IMAGE_PIXELS``, or truncated data."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such PFM file")
+    existing_file(path, "PFM file")
     data = path.read_bytes()
     if data[:2] not in (b"PF", b"Pf"):
         raise ImageFormatError(f"{path}: not a PFM file (first bytes {data[:2]!r}, expected 'PF' or 'Pf')")

@@ -11,7 +11,7 @@ import numpy as np
 import png
 
 from ..results import atomic_write_bytes
-from ._errors import ImageFormatError, check_image_size
+from ._errors import ImageFormatError, check_image_size, existing_file
 
 __all__ = ["read_png", "write_png"]
 
@@ -24,8 +24,7 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     signature, CRC, zlib stream, truncation) or declares more than
     ``MAX_IMAGE_PIXELS`` (checked before any row is decoded)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such PNG file")
+    existing_file(path, "PNG file")
     # From memory, not the file: pypng reads each chunk with one read(length), and a file object allocates
     # the declared length (up to 2^31 bytes in a corrupt file) before finding the file shorter.
     data = path.read_bytes()

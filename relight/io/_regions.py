@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import ImageFormatError
+from ._errors import ImageFormatError, existing_file
 
 
 def read_regions(path: str | os.PathLike, surface) -> np.ndarray:
@@ -34,8 +34,7 @@ def read_regions(path: str | os.PathLike, surface) -> np.ndarray:
     from ._png import read_png
 
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{path}: no such label map")
+    existing_file(p, "label map")
     suffix = p.suffix.lower()
     if suffix == ".png":
         img = np.asarray(read_png(p))

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..image import srgb_decode
-from ._errors import ImageFormatError, check_image_size
+from ._errors import ImageFormatError, check_image_size, existing_file
 from ._png import read_png
 
 __all__ = ["HEAD_SKIN_FILES", "head_skin_textures", "read_texture"]
@@ -44,8 +44,7 @@ def read_texture(path: str | os.PathLike, *, srgb: bool = True) -> np.ndarray:
     (checked from the header, before decoding).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImageFormatError(f"{path}: no such texture file")
+    existing_file(path, "texture file", missing=ImageFormatError)
     with open(path, "rb") as fh:
         is_png = fh.read(8) == b"\x89PNG\r\n\x1a\n"
     if is_png:

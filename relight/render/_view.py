@@ -241,9 +241,15 @@ def y_rotations(angles_deg) -> np.ndarray:
 
     Returns:
         float64 [K, 3, 3] rotations R_k: light that arrived from d arrives from R_k d.
+
+    Each angle is reduced modulo 360 first (exact in float64), so any finite angle, 1e308 included, is the
+    rotation it names instead of an overflow in the float32 trigonometry; ValueError for NaN or Inf.
     """
-    return np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(a)), np.float64)
-                     for a in np.asarray(angles_deg, np.float64).reshape(-1)])
+    a = np.asarray(angles_deg, np.float64).reshape(-1)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"rotation angles must be finite degrees, got {a[~np.isfinite(a)][:3].tolist()}")
+    return np.stack([np.asarray(rotation_matrix(np.array([0.0, 1.0, 0.0]), np.deg2rad(x)), np.float64)
+                     for x in np.mod(a, 360.0)])
 
 
 def scaled_camera(camera: stage.Camera, size: int) -> stage.Camera:

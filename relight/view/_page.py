@@ -94,8 +94,12 @@ def _read_inside(folder: Path, path: Path, limit: int, signature: bytes = b"") -
 
 
 def _esc(s) -> str:
-    """Text (from a file, a flag, anything) as HTML character data or an attribute value."""
-    return html.escape(str(s), quote=True)
+    """Text (from a file, a flag, a file name, anything) as HTML character data or an attribute value. A file
+    name that is not valid UTF-8 reaches Python with its bytes as lone surrogates (``os.fsdecode``), and JSON
+    may hold lone surrogates too; they are shown as U+FFFD, so the page names the file as well as it can
+    instead of failing to encode."""
+    text = str(s).encode("utf-8", "surrogatepass").decode("utf-8", "replace")
+    return html.escape(text, quote=True)
 
 
 # JSON that goes inside a <script> element: the HTML parser ends the element at the first "</script", whatever

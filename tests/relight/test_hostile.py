@@ -4,11 +4,14 @@ so that a regression that allocates what a size asks for fails its case instead 
 
 Classes held here: sizes and counts from flags and files checked against stated limits before any allocation
 (docs/reliability.md, "Sizes and counts"); JSON nested past the parser's recursion limit, in a manifest of --out and
-in a viewed folder; an out-of-memory failure reported as one line. Held elsewhere: names from files as path
+in a viewed folder; a file name that is not UTF-8 in a viewed folder; something that is not a regular file (a FIFO)
+where a file is read; a finite but absurd angle; a non-finite output image; an out-of-memory failure reported as
+one line. Held elsewhere: names from files as path
 components (test_cli_photos.py), the viewer's escaping and embed rule (test_view_escaping.py), store chunks
 (test_capture_store.py), photo exposure overflow (test_cli_photos.py)."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -51,8 +54,17 @@ def hostile(tmp_path_factory):
     (root / "view").mkdir()
     (root / "view" / "settings.json").write_text('{"a":' * 100000 + "1" + "}" * 100000)
     (root / "view" / "report.md").write_text("# report\n\x00\x00 | a\n|---|\n")
+    # ... and a file whose name is not UTF-8 (the page failed with "surrogates not allowed", naming no file).
+    (root / "view" / os.fsdecode(b"bad\xff\xfe.png")).write_bytes(b"\x89PNG\r\n\x1a\n")
+    # A FIFO given as an environment map (it said "no such HDR file"; reading it would hang).
+    os.mkfifo(root / "env.hdr")
     sim = ["simulate", "--resolution", "8", "--image-size", "16", "--quiet", "--no-index"]
+    render = ["render", str(root / "cap"), "--image-size", "16", "--quiet", "--no-index"]
     cases = {
+        "capture": [*sim, "--rig", "dome:12", "--out", str(root / "cap")],
+        "fifo_env": [*render, "--envmap", str(root / "env.hdr"), "--out", str(root / "r0")],
+        "rotate_huge": [*render, "--rotate", "1e308", "--out", str(root / "r1")],
+        "rotate_same": [*render, "--rotate", str(1e308 % 360.0), "--out", str(root / "r2")],
         "dome": [*sim, "--rig", "dome:1000000000", "--out", str(root / "s1")],
         "resolution": ["simulate", "--rig", "dome:12", "--resolution", "100000", "--quiet", "--out", str(root / "s2")],
         "image_size": [*sim, "--rig", "dome:12", "--image-size", "1000000", "--out", str(root / "s3")],
@@ -80,6 +92,7 @@ def hostile(tmp_path_factory):
     ("cameras", "--cameras 100000: must be at most 64"),
     ("frames", "--frames 100000: must be at most 720"),
     ("deep_out", "not the output of an earlier `relight simulate`"),
+    ("fifo_env", "env.hdr: is a FIFO (named pipe), not a regular file (HDR file expected)"),
 ])
 def test_a_size_or_file_beyond_its_limit_is_one_named_error(hostile, case, message):
     """Each ends with exit 1 and the command's one-line error naming the flag or file and the limit, under the
@@ -89,7 +102,19 @@ def test_a_size_or_file_beyond_its_limit_is_one_named_error(hostile, case, messa
     assert r["rc"] == 1, r
     assert r["err"].startswith(f"relight {r['argv'][0]}: error: ") and message in r["err"], r["err"]
     assert "Traceback" not in r["err"] and len(r["err"].strip().splitlines()) == 1, r["err"]
-    assert not any((root / n).exists() for n in ("s1", "s2", "s3", "s4", "d"))
+    assert not any((root / n).exists() for n in ("s1", "s2", "s3", "s4", "d", "r0"))
+
+
+def test_a_huge_rotation_is_the_rotation_it_names(hostile):
+    """--rotate 1e308 (a finite float) is 1e308 mod 360 = 296 degrees, exactly: the same frame as --rotate 296,
+    no overflow in the float32 trigonometry (it used to warn of one, or blame "setting 'rotation'")."""
+    from relight.io import read_exr
+
+    root, results = hostile
+    assert results["capture"]["rc"] == results["rotate_huge"]["rc"] == results["rotate_same"]["rc"] == 0, results
+    assert "Warning" not in results["rotate_huge"]["err"]
+    huge, same = read_exr(root / "r1" / "relit.exr"), read_exr(root / "r2" / "relit.exr")
+    assert np.all(np.isfinite(huge)) and np.array_equal(huge, same)
 
 
 def test_a_viewed_folder_of_hostile_files_still_gets_its_page(hostile):
