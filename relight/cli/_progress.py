@@ -3,6 +3,9 @@ of every library call (``stage.Progress``), and the ``-qq`` rule for the summary
 
 from __future__ import annotations
 
+import sys
+import time
+
 
 # A phase's bar before its first unit is done: JAX is tracing and compiling, so a rate or an ETA from the
 # time spent so far would be one of hours (the first chunk pays the compile); it says "compiling" instead.
@@ -19,18 +22,30 @@ class Bar:
     rate counts only the time since, so the compile does not enter the ETA. A phase without a total shows
     its running count. ``quiet``: no bars at all. ``file``: the stream (default: tqdm's, stderr).
     ``waiting``: what a bar says before its first unit ("compiling"; a reading phase: "reading").
+    ``live``: redrawn tqdm bars (True) or one plain line per phase (False, :class:`_PhaseLines`); default:
+    bars when the stream is a terminal, lines when it is a file, a pipe or a CI log.
     ``tqdm_options``: passed to each tqdm (tests: ``mininterval=0, miniters=1`` to draw every report)."""
 
-    def __init__(self, total, desc, quiet, leave=False, file=None, waiting: str = "compiling", **tqdm_options):
+    def __init__(self, total, desc, quiet, leave=False, file=None, waiting: str = "compiling", live=None,
+                 **tqdm_options):
         self._quiet, self._leave, self._file, self._waiting = bool(quiet), leave, file, str(waiting)
         self._options = {"mininterval": 0.5, "dynamic_ncols": True, **tqdm_options}
         self._bars: dict[str, object] = {}
         self._running: dict[str, bool] = {}
         self._last = str(desc)
+        if live is None:  # redrawn bars on a terminal; one line per phase in a log or a pipe
+            stream = file if file is not None else sys.stderr
+            live = bool(getattr(stream, "isatty", lambda: False)())
+        self._lines = None if live or self._quiet else _PhaseLines(file if file is not None else sys.stderr)
         self._open(self._last, total, 0)
 
     def _open(self, phase: str, total, done: int) -> None:
         from tqdm.auto import tqdm
+
+        if self._lines is not None:
+            self._bars[phase] = self._lines.open(phase, total, done)
+            self._running[phase] = bool(done)
+            return
 
         fmt = _waiting_format(total, self._waiting)
         kw = {} if self._file is None else {"file": self._file}
@@ -42,6 +57,9 @@ class Bar:
         """The first unit of ``phase`` is done: its bar shows rate and ETA, timed from now."""
         b = self._bars[phase]
         self._running[phase] = True
+        if self._lines is not None:
+            self._lines.advance(b, done, first=True)
+            return
         b.bar_format = None
         if b.disable:
             b.n = done
@@ -57,6 +75,9 @@ class Bar:
         self.close()
 
     def close(self) -> None:
+        if self._lines is not None:
+            self._lines.close(self._bars.values())
+            return
         for b in self._bars.values():
             b.close()
 
@@ -73,9 +94,16 @@ class Bar:
             first = next(iter(self._bars))
             if len(self._bars) == 1 and self._bars[first].n == 0 and not self._running[first]:
                 # The command's own placeholder bar (nothing counted yet) becomes this phase's.
-                self._bars.pop(first).close()
+                placeholder = self._bars.pop(first)
                 self._running.pop(first)
+                if self._lines is None:
+                    placeholder.close()
             self._open(phase, total, done)
+            return
+        if self._lines is not None:
+            b.total = total
+            self._lines.advance(b, done, first=not self._running[phase] and done > 0)
+            self._running[phase] = self._running[phase] or done > 0
             return
         if total != b.total:
             b.total = total
@@ -85,6 +113,54 @@ class Bar:
             self._start_rate(phase, done)
             return
         b.update(done - b.n)
+
+
+class _Phase:
+    """One phase's count in line mode: its name, total, count, start and first-unit times, and whether its
+    line is out."""
+
+    def __init__(self, phase: str, total, done: int):
+        self.phase, self.total, self.n = phase, total, int(done)
+        self.start = time.perf_counter()
+        self.first = self.start if done else None
+        self.printed = False
+
+
+class _PhaseLines:
+    """Progress where nothing is redrawn (a log file, a pipe, CI): one plain line per phase when it completes
+    (its count reaches its total), or at the end for a phase without a total or left short, with the seconds
+    it took and, apart, those before its first unit (JAX compiling): no cursor codes, no bars stacked by the
+    dozen, no rate extrapolated from a phase's first seconds."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def open(self, phase: str, total, done: int) -> _Phase:
+        p = _Phase(phase, total, done)
+        self._maybe_print(p)
+        return p
+
+    def advance(self, p: _Phase, done: int, first: bool = False) -> None:
+        if first and p.first is None:
+            p.first = time.perf_counter()
+        p.n = int(done)
+        self._maybe_print(p)
+
+    def _maybe_print(self, p: _Phase) -> None:
+        if not p.printed and p.total and p.n >= p.total:
+            self._print(p)
+
+    def _print(self, p: _Phase) -> None:
+        p.printed = True
+        now = time.perf_counter()
+        count = f"{p.n}/{p.total}" if p.total else f"{p.n}"
+        setup = "" if p.first is None or p.first - p.start < 0.05 else f" ({p.first - p.start:.1f} s before the first)"
+        print(f"{p.phase}: {count} in {now - p.start:.1f} s{setup}", file=self.stream, flush=True)
+
+    def close(self, phases) -> None:
+        for p in phases:
+            if not p.printed and p.n > 0:
+                self._print(p)
 
 
 def bar(total, desc, quiet, leave=False, file=None, waiting: str = "compiling") -> Bar:

@@ -206,19 +206,20 @@ def _run_texel(args, capture_dir: Path, mesh, devices, envmap: Path, out: Path, 
 
 
 def _index_sweeps(tmp: Path, r, envmap: Path):
-    """index.html's slider: the capture the maps were fitted from, relit image-based (read back whole if small
-    enough: ``relight.view.folder_sweeps``); without one (a photo capture, a large one), the fitted maps
-    rendered model-based through the capture's rig (``r``: the ``relight.fitting.FitFolderResult``)."""
+    """index.html's slider, two rows at one exposure: the capture the maps were fitted from, relit image-based
+    (read back whole if small enough: ``relight.view.folder_sweeps``; none for a photo capture or a large one),
+    the reference, and the fitted maps rendered model-based through the capture's rig, what the fit made
+    (``r``: the ``relight.fitting.FitFolderResult``)."""
     from ..envmap import load_envmap
     from ..view import folder_sweeps, maps_sweep
 
-    rows, note = ([], None) if r.kind == "photos" else folder_sweeps(tmp, envmap, INDEX_FRAMES, INDEX_SIZE,
-                                                                     model=False)
-    if rows:
-        return rows, note
-    return [maps_sweep(r.fit.maps(r.surface), r.surface, r.mesh, r.capture.cameras[0], load_envmap(envmap),
-                       rig=r.capture.rig, frames=INDEX_FRAMES, size=INDEX_SIZE,
-                       label="the fitted maps rendered model-based (the capture's rig)")], None
+    rows, _ = ([], None) if r.kind == "photos" else folder_sweeps(tmp, envmap, INDEX_FRAMES, INDEX_SIZE,
+                                                                  model=False)
+    fitted = maps_sweep(r.fit.maps(r.surface), r.surface, r.mesh, r.capture.cameras[0], load_envmap(envmap),
+                        rig=r.capture.rig, frames=INDEX_FRAMES, size=INDEX_SIZE,
+                        label="the fitted maps rendered model-based (the capture's rig)",
+                        exposure=rows[0].exposure if rows else None)
+    return [*rows, fitted], None
 
 
 def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._exposure import subject_exposure
+from ._figure import labelled_grid
 from ._preview import dilate, texture_view
 from ._tonemap import to_uint8, tonemap
 
@@ -62,7 +63,8 @@ def truth_fit_figure(mesh, surface, camera, truth, fitted, relit_truth, relit_fi
         covered: bool [H, W], the subject's pixels.
 
     Returns:
-        uint8 [3 H, 3 W, 3].
+        uint8 [H', W', 3]: the 3 x 3 grid with its row and column titles and a colour bar under every heat map
+        (:func:`relight.image._figure.labelled_grid`), each image at its own pixels.
     """
     covered = np.asarray(covered, bool)
     relit_truth, relit_fit = np.asarray(relit_truth), np.asarray(relit_fit)
@@ -88,4 +90,8 @@ def truth_fit_figure(mesh, surface, camera, truth, fitted, relit_truth, relit_fi
                  _heat(views["albedo_e"][..., 0], ALBEDO_ERROR_MAX, on)])
     rows.append([_heat(views["mfp_t"][..., 0], vmax, on), _heat(views["mfp_f"][..., 0], vmax, on),
                  _heat(views["mfp_e"][..., 0], MFP_ERROR_MAX, on)])
-    return np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
+    heat = lambda top, label: (0.0, top, label, "magma")  # noqa: E731
+    scales = [[None, None, heat(100 * RELIT_ERROR_MAX, "% of p90 pixel")],
+              [None, None, heat(100 * ALBEDO_ERROR_MAX, "rel. error, %")],
+              [heat(vmax, "red, mm"), heat(vmax, "red, mm"), heat(100 * MFP_ERROR_MAX, "rel. error, %")]]
+    return labelled_grid(rows, ["relit", "diffuse albedo", "mean free path"], ["truth", "fit", "error"], scales)

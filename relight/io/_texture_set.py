@@ -486,7 +486,7 @@ def _read_map_file(path: Path, key: str, names, res: tuple[int, int]) -> dict[st
     return {n: np.asarray(c[n], np.float32) for n in names}
 
 
-def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
+def read_maps(folder: str | os.PathLike, *, building: bool = False) -> tuple[TextureSet, dict]:
     """Read and validate a texture set written by :func:`write_maps`.
 
     Returns ``(textures, surface_info)``: a :class:`TextureSet` and maps.json's
@@ -500,12 +500,16 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
     ``relight.results.ResultSetError`` it chains) when the folder has no
     result-set manifest or a file differs from it (a mix of two writes),
     checked after the content so that a damaged file is named for what is
-    wrong with it.
+    wrong with it. ``building=True``: the folder is a result set this process
+    is still writing (its manifest comes last; the results viewer's page of a
+    fit is built there before the commit): every file is read and checked, the
+    manifest is not asked for.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such map-set folder")
-    rs = _open_set(folder)  # opened first: the folder's identity then is what the files must still belong to
+    # Opened first: the folder's identity then is what the files must still belong to.
+    rs = None if building else _open_set(folder)
     meta_path = folder / "maps.json"
     info, res = _read_header(meta_path)
     chans = {key: _read_map_file(folder / name, key, names, res) for key, (name, names) in FILES.items()}
@@ -543,10 +547,11 @@ def read_maps(folder: str | os.PathLike) -> tuple[TextureSet, dict]:
         info=info,
         filled=filled,
     )
-    with set_refusal_as(folder):
-        if isinstance(rs, ResultSetError):
-            raise rs
-        rs.check(SET_FILES)
+    if rs is not None:
+        with set_refusal_as(folder):
+            if isinstance(rs, ResultSetError):
+                raise rs
+            rs.check(SET_FILES)
     return tex, tex.surface_info
 
 

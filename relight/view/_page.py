@@ -137,14 +137,15 @@ def _shown(x: np.ndarray) -> np.ndarray:
     return to_uint8(tonemap(x, exposure=0.0, curve="none"))
 
 
-def _comparison(truth_dir: Path, fit_dir: Path) -> tuple[list, str | None]:
-    """Rows (name, truth, fit, error, scale) of uint8 images for the truth | fit | error table, or a note."""
+def _comparison(truth_dir: Path, fit_dir: Path, building: Path | None = None) -> tuple[list, str | None]:
+    """Rows (name, truth, fit, error, scale) of uint8 images for the truth | fit | error table, or a note.
+    ``building``: the result set being written (its manifest not there yet), whose map sets are read without one."""
     from ..image import upscale_nearest
     from ..io import read_maps
 
     try:
-        truth, _ = read_maps(truth_dir)
-        fit, _ = read_maps(fit_dir)
+        truth, _ = read_maps(truth_dir, building=truth_dir == building)
+        fit, _ = read_maps(fit_dir, building=fit_dir == building)
     except (OSError, ValueError) as err:
         return [], f"no truth | fit | error table: {err}"
     if truth.resolution != fit.resolution:
@@ -279,9 +280,10 @@ def _relit(sweeps: list[Sweep], note: str | None) -> tuple[str, str]:
     return controls + f'<div class="sweeps">{figs}</div>', "window.SWEEPS=" + _script_json(data) + ";"
 
 
-def _comparison_html(folder: Path, truth_dir: Path, fit_dir: Path) -> str:
-    """The truth | fit | error section's HTML (or a note saying why there is none)."""
-    rows, why = _comparison(truth_dir, fit_dir)
+def _comparison_html(folder: Path, truth_dir: Path, fit_dir: Path, building: bool = False) -> str:
+    """The truth | fit | error section's HTML (or a note saying why there is none); ``building``: ``folder`` is
+    a result set still being written (:func:`page_html`'s ``location``)."""
+    rows, why = _comparison(truth_dir, fit_dir, folder if building else None)
     if not rows:
         return f'<p class="note">{_esc(why)}</p>'
     cells = "".join(f"<tr><th>{_esc(n)}<br><small>{_esc(st)}</small></th><td><img src='{data_uri(t)}'></td>"
@@ -372,7 +374,7 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
 
     truth_dir, fit_dir = _truth_pair(folder)
     if truth_dir is not None and fit_dir is not None:
-        section("truth", "Truth | fit | error", _comparison_html(folder, truth_dir, fit_dir))
+        section("truth", "Truth | fit | error", _comparison_html(folder, truth_dir, fit_dir, location is not None))
 
     maps, others = _gallery(folder, embed)
     if maps:

@@ -152,7 +152,7 @@ def test_bar_has_one_bar_per_phase_each_with_its_total():
     without a total; every phase gets its own bar with its own total, the command's placeholder bar
     (nothing counted) gives way to the first phase, and the counts end where the stream ends."""
     stream = io.StringIO()
-    b = Bar(110, "fit (texels)", quiet=False, file=stream, mininterval=0, miniters=1)
+    b = Bar(110, "fit (texels)", quiet=False, file=stream, live=True, mininterval=0, miniters=1)
     totals = {"fit lambert": 10, "fit ggx": 66, "fit blinn_phong": 34}
     for name, total in totals.items():
         b(name, 0, total)
@@ -178,7 +178,7 @@ def test_bar_shows_no_eta_before_the_first_unit_and_times_from_it():
     at the first unit the clock restarts, so the compile time never enters the rate (tqdm's rate is
     (n - initial) / elapsed): the ETA is that of the chunks after the first."""
     stream = io.StringIO()
-    b = Bar(None, "simulate", quiet=False, file=stream, mininterval=0, miniters=1)
+    b = Bar(None, "simulate", quiet=False, file=stream, live=True, mininterval=0, miniters=1)
     b("simulate", 0, 1496)
     b("simulate", 0, 1496)
     waiting = _frames(stream)
@@ -195,9 +195,33 @@ def test_bar_shows_no_eta_before_the_first_unit_and_times_from_it():
     b.close()
 
 
+def test_a_log_gets_one_plain_line_per_phase():
+    """Where nothing can be redrawn (a file, a pipe: ``live`` defaults to the stream's isatty), each phase prints
+    one line when its count reaches its total, or at the end, with its seconds: no cursor codes, no stacked
+    bars, no rate extrapolated from a phase's first seconds (issue 29: `fit lambert 61/5356 [02:13<1:11:20]` in
+    a log, for a phase that ended seconds later)."""
+    stream = io.StringIO()
+    with Bar(110, "fit (texels)", quiet=False, file=stream) as b:  # StringIO is no terminal: line mode
+        totals = {"fit lambert": 10, "fit ggx": 66}
+        for name, total in totals.items():
+            b(name, 0, total)
+        for block in (1, 2):
+            for name, total in totals.items():
+                b(name, total * block // 2, total)
+        b("merge", 0, None)
+        b("merge", 3, None)
+        assert stream.getvalue().count("\n") == 2  # the two rungs, as each completed; merge has no total yet
+    lines = stream.getvalue().splitlines()
+    assert "\x1b" not in stream.getvalue() and "\r" not in stream.getvalue()
+    assert [line.split(":")[0] for line in lines] == ["fit lambert", "fit ggx", "merge"], lines
+    assert re.fullmatch(r"fit lambert: 10/10 in \d+\.\d s( \(\d+\.\d s before the first\))?", lines[0]), lines
+    assert re.fullmatch(r"merge: 3 in \d+\.\d s.*", lines[2]) and not any(_eta(f) for f in lines), lines
+
+
 def test_a_reading_phase_says_reading_and_quiet_draws_nothing():
     stream = io.StringIO()
-    with Bar(None, "read mask", quiet=False, file=stream, waiting="reading", mininterval=0, miniters=1) as b:
+    with Bar(None, "read mask", quiet=False, file=stream, waiting="reading", live=True, mininterval=0,
+             miniters=1) as b:
         b("read mask", 0, 42)
     assert any("reading" in f and "compiling" not in f for f in _frames(stream))
     stream = io.StringIO()
