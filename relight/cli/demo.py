@@ -72,6 +72,9 @@ def run(args) -> int:
           f"{100 * e['diffuse_albedo_rel']['all_seen']['median']:.2f}%, "
           f"mean free path {mfp} ({100 * report['mfp_identified_fraction']:.0f}% of texel-channels identified), "
           f"relit PSNR vs truth {report['relit_psnr_db']:.1f} dB")
+    peak = max((v for v in (report.get("peak_rss_mib") or {}).values() if v is not None), default=None)
+    if peak is not None:
+        print(f"peak memory {peak / 1024:.1f} GiB (resident; report.md has it per phase)")
     return 0
 
 

@@ -116,6 +116,10 @@ def _preface(r: dict) -> list[str]:
         lines.append("Subsurface rungs: " + ", ".join(f"{k} {100 * v:.1f}%" for k, v in rungs.items())
                      + f"; mean free path identified on {100 * r['mfp_identified_fraction']:.1f}% of "
                        "texel-channels.")
+    memory = {k: v for k, v in (r.get("peak_rss_mib") or {}).items() if v is not None}
+    if memory:
+        lines.append("Peak memory (the process's resident set, MiB, after each phase): "
+                     + ", ".join(f"{k} {v:.0f}" for k, v in memory.items()) + ".")
     return lines + [f"Flagged texels: {100 * r['flagged_fraction']:.2f}%.",
                     f"Relit (fitted maps vs truth maps, same renderer, same map, view of the middle camera, "
                     f"{r['relit_pixels']} head pixels): PSNR {r['relit_psnr_db']:.1f} dB.", ""]
@@ -187,6 +191,7 @@ def run_demo(*, resolution: int = 96, envmap: str | os.PathLike | None = None, i
     from ..io import head_skin_textures
     from ..materials import MODELS, skin_maps
     from ..render import render_view
+    from ..simulation import peak_rss_mib
 
     envmap = Path(envmap) if envmap is not None else bundled_envmap_path()
     env = load_envmap(envmap)  # a missing or corrupt map fails before minutes of simulation and fitting
@@ -197,6 +202,7 @@ def run_demo(*, resolution: int = 96, envmap: str | os.PathLike | None = None, i
     rig = stage.light_stage_x()
     cams = stage.front_ring(mesh, cameras, image_size)
     times["geometry"] = time.perf_counter() - t0
+    memory = {"geometry": peak_rss_mib()}  # the process's peak resident set after each phase, MiB
 
     t0 = time.perf_counter()
     light_vis = stage.light_visibility(mesh, full, rig, chunk=1 << 18, progress=progress)
@@ -204,17 +210,20 @@ def run_demo(*, resolution: int = 96, envmap: str | os.PathLike | None = None, i
     seen = np.flatnonzero(cam_vis.any(axis=0))
     surface, light_vis, cam_vis = full.subset(seen), np.asarray(light_vis)[seen], cam_vis[:, seen]
     times["visibility"] = time.perf_counter() - t0
+    memory["visibility"] = peak_rss_mib()
 
     t0 = time.perf_counter()
     skin = skin_maps(surface, head_skin_textures())
     truth = skin.maps(surface)
     capture, radius = _simulate(surface, truth, rig, cams, light_vis, cam_vis, noise, seed, progress)
     times["simulate"] = time.perf_counter() - t0
+    memory["simulate"] = peak_rss_mib()
 
     t0 = time.perf_counter()
     fitted = fit_with_subsurface(capture, surface, model="auto", normals=True, per="auto", passes=passes,
                                  regions=skin.regions, radius_mm=radius, options=FitOptions(progress=progress))
     times["fit"] = time.perf_counter() - t0
+    memory["fit"] = peak_rss_mib()
 
     t0 = time.perf_counter()
     maps = fitted.maps(surface)
@@ -222,6 +231,7 @@ def run_demo(*, resolution: int = 96, envmap: str | os.PathLike | None = None, i
     relit_truth = render_view(truth, surface, mesh, camera, env, method="rig", rig=rig, background=False)
     relit_fit = render_view(maps, surface, mesh, camera, env, method="rig", rig=rig, background=False)
     times["relight"] = time.perf_counter() - t0
+    memory["relight"] = peak_rss_mib()
     covered = np.asarray(stage.primary_hits(mesh, camera, 1)[0])
 
     model, rung, ident = np.asarray(fitted.model), fitted.mfp_rung, fitted.mfp_identified
@@ -238,7 +248,7 @@ def run_demo(*, resolution: int = 96, envmap: str | os.PathLike | None = None, i
         "mfp_identified_fraction": 0.0 if ident is None else float(np.mean(np.asarray(ident))),
         "flagged_fraction": float(np.mean(np.asarray(fitted.failed))),
         "relit_psnr_db": psnr(relit_fit, relit_truth, covered), "relit_pixels": int(covered.sum()),
-        "operator_radius_mm": radius})
+        "operator_radius_mm": radius, "peak_rss_mib": memory})
     settings = {"resolution": resolution, "envmap": str(envmap), "image_size": image_size, "cameras": len(cams),
                 "noise": noise, "seed": seed, "passes": passes, "rig": RIG, "textures": TEXTURES,
                 "camera": stage.camera_to_dict(camera, "relit")}  # the relit images' camera (relight view's)

@@ -113,7 +113,9 @@ def file_name(name: object, where: str, *, error: type[ValueError] = ImageFormat
 def path_template(template: object, fields: Mapping[str, object], required: tuple[str, ...], where: str) -> str:
     """``template`` checked as a file-name pattern read from a user's file: a
     ``str.format`` string whose fields are only names from ``fields`` (no
-    attribute or index access), with every name in ``required``, field widths
+    attribute or index access), with every name in ``required``, literal
+    format specs (no field nested in a spec: ``{light:{light}{light}}`` makes
+    the light index a width, 345345345 characters at light 345) of widths
     under 1000, formatting ``fields``' trial values (name -> value) without
     error into at most ``MAX_PATH_CHARS`` characters and no NUL byte. Raises
     :class:`ImageFormatError` naming ``where``."""
@@ -122,10 +124,13 @@ def path_template(template: object, fields: Mapping[str, object], required: tupl
     shown = repr(template) if len(template) <= 80 else repr(template[:77]) + "..."
     try:
         parsed = [(f, spec or "") for _, f, spec, _ in string.Formatter().parse(template) if f is not None]
-        # Specs may nest fields ("{light:{view}}"): those follow the same rule.
         nested = [f for _, spec in parsed for _, f, _, _ in string.Formatter().parse(spec) if f is not None]
     except ValueError as err:
         raise ImageFormatError(f"{where}: {shown} is not a format string ({err})") from None
+    if nested:
+        # A field inside a spec turns an index into a width or a precision, which no trial value bounds.
+        raise ImageFormatError(f"{where}: {shown} nests fields {nested} in a format spec; specs must be literal "
+                               "(e.g. {light:03d})")
     names = [f for f, _ in parsed] + nested
     if any(f not in fields for f in names) or any(r not in names for r in required):
         allowed = ", ".join("{" + f + "}" for f in fields)
@@ -135,7 +140,7 @@ def path_template(template: object, fields: Mapping[str, object], required: tupl
     # characters (at a million, the memory for it) before anything else could refuse it.
     if any(re.search(r"\d{4,}", spec) for _, spec in parsed):
         raise ImageFormatError(f"{where}: {shown} has a field width of 1000 or more characters")
-    try:  # one trial, so a spec the values refuse ("{light:s}", "{light:{view.x}}") is named here
+    try:  # one trial, so a spec the values refuse ("{light:s}") is named here
         sample = template.format(**fields)
     except (ValueError, TypeError, AttributeError, KeyError, IndexError) as err:
         raise ImageFormatError(f"{where}: {shown} does not format {dict(fields)} "

@@ -263,7 +263,7 @@ class PhotoCapture:
             img = read_exr(path)
             stored = img
         else:
-            raw = read_png(path)
+            raw = read_png(path, shape=size)
             img = _png_unit(raw)
             if raw.shape[-1] in (2, 4):
                 img = img[..., :-1]  # drop alpha
@@ -309,7 +309,7 @@ class PhotoCapture:
         if path.suffix.lower() == ".exr":
             m = read_exr(path)[..., 0] > 0.5
         elif path.suffix.lower() == ".png":
-            m = _png_unit(read_png(path)[..., 0]) > 0.5
+            m = _png_unit(read_png(path, shape=v["size"])[..., 0]) > 0.5
         else:
             raise _err(path, "a mask must be .png or .exr")
         if m.shape != v["size"]:

@@ -16,13 +16,18 @@ from ._errors import ImageFormatError, check_image_size, existing_file
 __all__ = ["read_png", "write_png"]
 
 
-def read_png(path: str | os.PathLike) -> np.ndarray:
+def read_png(path: str | os.PathLike, shape: tuple[int, int] | None = None,
+             max_pixels: int | None = None) -> np.ndarray:
     """Read a PNG as ``[H, W, C]`` uint8 (bit depth <= 8) or uint16 (bit depth 16),
     values as stored (no gamma decoding). Palettes are expanded to RGB(A); bit
     depths 1, 2 and 4 are rescaled to the 0..255 range. Raises
     ``ImageFormatError`` naming the file when it is not a readable PNG (bad
     signature, CRC, zlib stream, truncation) or declares more than
-    ``MAX_IMAGE_PIXELS`` (checked before any row is decoded)."""
+    ``MAX_IMAGE_PIXELS`` (checked before any row is decoded). ``shape``: the
+    ``(H, W)`` the caller needs (a camera's mask or photograph) and
+    ``max_pixels``: a smaller bound of its own (a label map), both compared
+    with the header before any row is decoded, so a small file declaring
+    16384^2 pixels costs nothing."""
     path = Path(path)
     existing_file(path, "PNG file")
     # From memory, not the file: pypng reads each chunk with one read(length), and a file object allocates
@@ -32,6 +37,11 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
         w, h, rows, info = png.Reader(bytes=data).asDirect()
         # The header's size, before any row is decoded (a corrupt IHDR declares up to 2^31 x 2^31).
         check_image_size(path, h, w, info["planes"], "the PNG header")
+        if shape is not None and (h, w) != tuple(shape):
+            raise ImageFormatError(f"{path}: the PNG header says {w}x{h} pixels, expected {shape[1]}x{shape[0]}")
+        if max_pixels is not None and h * w > max_pixels:
+            raise ImageFormatError(f"{path}: the PNG header says {w}x{h} pixels, more than the {max_pixels} "
+                                   "this file may have")
         dtype = np.uint16 if info["bitdepth"] > 8 else np.uint8
         arr = np.vstack([np.asarray(r, dtype=dtype)[None] for r in rows])
     except (ImageFormatError, MemoryError):

@@ -10,6 +10,8 @@ import numpy as np
 
 from ._errors import ImageFormatError, existing_file
 
+# The largest label map read: an 8192^2 texel grid's worth of labels.
+MAX_LABEL_PIXELS = 8192 * 8192
 
 def read_regions(path: str | os.PathLike, surface) -> np.ndarray:
     """Region labels 0..R-1 at a surface's samples, read from a label map.
@@ -37,7 +39,9 @@ def read_regions(path: str | os.PathLike, surface) -> np.ndarray:
     existing_file(p, "label map")
     suffix = p.suffix.lower()
     if suffix == ".png":
-        img = np.asarray(read_png(p))
+        # A label map is sampled by UV at any size, up to the largest texel grid (relight.cli's --resolution
+        # limit), checked before any row is decoded.
+        img = np.asarray(read_png(p, max_pixels=MAX_LABEL_PIXELS))
         img = img[..., None] if img.ndim == 2 else img
         _, lab = np.unique(img.reshape(-1, img.shape[-1]), axis=0, return_inverse=True)
         lab = lab.reshape(img.shape[:2])

@@ -67,6 +67,10 @@ def test_demo_end_to_end(demo_output):
     assert report["cameras"] == 1 and report["lights"] == 346 and report["noise_relative_at_median"] == 0.01
     assert abs(sum(report["model_fraction"].values()) - 1) < 1e-9
     assert set(report["timings_s"]) >= {"simulate", "fit", "relight"}
+    # The peak resident memory after each phase (issue 29: the demo's 5.8 GB went unsaid), non-decreasing.
+    peak = [report["peak_rss_mib"][k] for k in ("geometry", "visibility", "simulate", "fit", "relight")]
+    assert all(100 < p < 64 * 1024 for p in peak) and peak == sorted(peak), peak
+    assert "Peak memory" in (out / "report.md").read_text()
     for name in ("preview.png", "relit_truth.exr", "relit_fit.exr", "maps/albedo.exr", "maps/mean_free_path.exr",
                  "truth/albedo.exr", "truth/mean_free_path.exr", "settings.json", "report.md"):
         assert (out / name).is_file(), name

@@ -164,3 +164,44 @@ def test_a_non_finite_relit_image_is_not_written(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "relit.exr: the relit image has 1 NaN/Inf values (first at index (3, 4, 1)); not written" in err, err
     assert not list(tmp_path.glob("relit/relit.*"))
+
+
+def _declared_png(path, side: int) -> None:
+    """A valid 8-bit grey PNG of side x side zero pixels, a few hundred KB: its rows compressed as a stream,
+    never held whole."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    z, row, parts = zlib.compressobj(9), bytes(side + 1), []
+    for _ in range(side):
+        parts.append(z.compress(row))
+    parts.append(z.flush())
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", b"".join(parts)) + chunk(b"IEND", b""))
+
+
+def test_a_small_png_declaring_a_huge_image_is_refused_from_its_header(tmp_path):
+    """The reported case: a 261 KB PNG declaring 16384^2 pixels, given as --regions (over 90 s, 3.3 GB) or as a
+    camera's mask (2.9 GB), was decoded before its size was compared with the texel grid or the camera. Now the
+    header is compared first: refused within a few MB (a decode would allocate 268 MB at least)."""
+    import tracemalloc
+
+    import stage
+    from relight.io import ImageFormatError, read_png, read_regions
+    from tests.scenes import uv_sphere
+
+    path = tmp_path / "huge.png"
+    _declared_png(path, 16384)
+    assert path.stat().st_size < 1 << 20
+    surface = stage.texel_samples(uv_sphere(), 8)
+    tracemalloc.start()
+    with pytest.raises(ImageFormatError, match=r"huge\.png: the PNG header says 16384x16384 pixels, more than"):
+        read_regions(path, surface)
+    with pytest.raises(ImageFormatError, match=r"huge\.png: the PNG header says 16384x16384 pixels, expected 8x8"):
+        read_png(path, shape=(8, 8))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 16 << 20, peak

@@ -154,6 +154,7 @@ def test_capture_image_paths_stay_inside_the_folder(tmp_path, capture):
                                # format specs that ints refuse, nest an attribute, build a megabyte path,
                                # or give a NUL byte (which os calls refuse with their own ValueError)
                                "views/{light:s}.exr", "views/{light:{view.real}}.exr", "{light:>999999}.exr",
+                               "views/{light:{light}{light}{light}}.exr",  # the light index as a width
                                "views/\x00{light}.exr", "v/" * 600 + "{light}.exr"]):
         f = tmp_path / f"bad{k}"
         shutil.copytree(folder, f)

@@ -108,7 +108,7 @@ def test_the_page_is_self_contained_and_in_the_manifest(outputs, name):
 def test_what_each_page_shows(outputs):
     fit = (outputs / "maps" / "index.html").read_text()
     assert "the capture it was fitted from, relit image-based" in fit  # the fit's own capture, at memory speed
-    assert "the fitted maps rendered model-based" in fit  # and what the fit made (issue 29: only the capture)
+    assert "maps rendered model-based" in fit  # and what the fit made (issue 29: only the capture)
     assert "Truth | fit | error" in fit and "relight fit report" in fit and "<table>" in fit
     # The table itself, built from the maps before the set's manifest exists, not an error in its place (issue
     # 29: "no relight-set.json, so not a complete result set").
