@@ -147,13 +147,9 @@ def _eta(frame: str) -> bool:
     return bool(re.search(r"<\d|it/s|s/it", frame))
 
 
-def test_bar_has_one_bar_per_phase_each_with_its_total():
-    """A --model auto fit's stream: rungs interleaved over two blocks, each rung its own total, a phase
-    without a total; every phase gets its own bar with its own total, the command's placeholder bar
-    (nothing counted) gives way to the first phase, and the counts end where the stream ends."""
-    stream = io.StringIO()
-    b = Bar(110, "fit (texels)", quiet=False, file=stream, live=True, mininterval=0, miniters=1)
-    totals = {"fit lambert": 10, "fit ggx": 66, "fit blinn_phong": 34}
+def _auto_fit_stream(b, totals: dict) -> None:
+    """What a --model auto fit reports: each rung opened at 0, then half of each per block over two blocks,
+    interleaved, then a phase without a total ("merge") to 3."""
     for name, total in totals.items():
         b(name, 0, total)
     for block in (1, 2):
@@ -161,6 +157,16 @@ def test_bar_has_one_bar_per_phase_each_with_its_total():
             b(name, total * block // 2, total)
     b("merge", 0, None)
     b("merge", 3, None)
+
+
+def test_bar_has_one_bar_per_phase_each_with_its_total():
+    """A --model auto fit's stream: rungs interleaved over two blocks, each rung its own total, a phase
+    without a total; every phase gets its own bar with its own total, the command's placeholder bar
+    (nothing counted) gives way to the first phase, and the counts end where the stream ends."""
+    stream = io.StringIO()
+    b = Bar(110, "fit (texels)", quiet=False, file=stream, live=True, mininterval=0, miniters=1)
+    totals = {"fit lambert": 10, "fit ggx": 66, "fit blinn_phong": 34}
+    _auto_fit_stream(b, totals)
     assert set(b._bars) == {*totals, "merge"}  # the placeholder is gone, one bar per phase
     for name, total in totals.items():
         assert b._bars[name].total == total and b._bars[name].n == total
@@ -202,14 +208,7 @@ def test_a_log_gets_one_plain_line_per_phase():
     a log, for a phase that ended seconds later)."""
     stream = io.StringIO()
     with Bar(110, "fit (texels)", quiet=False, file=stream) as b:  # StringIO is no terminal: line mode
-        totals = {"fit lambert": 10, "fit ggx": 66}
-        for name, total in totals.items():
-            b(name, 0, total)
-        for block in (1, 2):
-            for name, total in totals.items():
-                b(name, total * block // 2, total)
-        b("merge", 0, None)
-        b("merge", 3, None)
+        _auto_fit_stream(b, {"fit lambert": 10, "fit ggx": 66})
         assert stream.getvalue().count("\n") == 2  # the two rungs, as each completed; merge has no total yet
     lines = stream.getvalue().splitlines()
     assert "\x1b" not in stream.getvalue() and "\r" not in stream.getvalue()
