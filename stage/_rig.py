@@ -69,7 +69,7 @@ def voronoi_solid_angles(directions: np.ndarray) -> np.ndarray:
     # The closest pair by a k-d tree: O(L log L) time and O(L) memory (an L x L Gram matrix is 32 GB at 65536).
     dist, nearest = cKDTree(d).query(d, k=2)
     i = int(np.argmin(dist[:, 1]))
-    j = int(nearest[i, 1])
+    j = int(nearest[i, 1] if nearest[i, 1] != i else nearest[i, 0])  # two at distance 0 may come in either order
     if dist[i, 1] < 2.0 * np.sin(_COINCIDENT_RAD / 2.0):  # the chord of _COINCIDENT_RAD
         i, j = min(i, j), max(i, j)
         raise ValueError(f"rig has coincident lights: lights {i} and {j} point the same way")
