@@ -50,6 +50,7 @@ def run(args) -> int:
         raise CLIError(f"{out}: a folder; --out names the camera file to write (e.g. {out / 'cameras.json'})")
     cameras = readers[args.format](args.path, _units(args.units))
     stage.save_cameras(out, list(cameras.values()), names=list(cameras))
+    _warn_unusable_names(cameras, out, args)
     if summary(args):
         for name, cam in cameras.items():
             K, distorted = np.asarray(cam.K, np.float64), bool(np.any(np.asarray(cam.dist) != 0))
@@ -57,3 +58,23 @@ def run(args) -> int:
                   f"{'distorted' if distorted else 'no distortion'}")
         print(f"wrote {len(cameras)} camera(s) to {out}")
     return 0
+
+
+def _warn_unusable_names(cameras: dict, out: Path, args) -> None:
+    """A warning (stderr, unless -qq) for each camera name that is not one plain file name (COLMAP keeps an
+    image's subfolder in its name, "left/img0001"): a photo capture names each view's folder by its camera, and
+    its reader refuses such a name (issue 29's rule: a name from a file never becomes a path), so it is said
+    here, where the name is made, not when the capture is first read."""
+    import sys
+
+    from ..io import ImageFormatError
+    from ..io._errors import file_name
+
+    for name in cameras:
+        try:
+            file_name(name, "camera name")
+        except ImageFormatError as err:
+            if summary(args):
+                print(f"relight cameras: warning: {out}: {err}. A photo capture names its view folders by camera, "
+                      f"and reading one refuses this name: rename the camera in {out.name} (its name only, "
+                      "not its calibration)", file=sys.stderr)

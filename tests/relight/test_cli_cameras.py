@@ -72,6 +72,23 @@ def test_an_unsupported_colmap_model_names_the_camera(tmp_path, capsys, formats)
     assert "cameras.txt: camera 1: model OPENCV_FISHEYE is not supported" in capsys.readouterr().err
 
 
+def test_a_camera_name_with_a_folder_is_said_when_written(tmp_path, capsys, formats):
+    """COLMAP keeps an image's subfolder in its name; the camera file is written as the model says, with one
+    warning per such name (a photo capture's reader refuses it as a view folder name: said here, not later)."""
+    folder = formats["colmap text"][0]
+    sub = tmp_path / "model"
+    sub.mkdir()
+    (sub / "cameras.txt").write_text((folder / "cameras.txt").read_text())
+    text = (folder / "images.txt").read_text()
+    assert text.count(" cam001\n") == 1
+    (sub / "images.txt").write_text(text.replace(" cam001\n", " left/cam001\n"))
+    out = tmp_path / "c.json"
+    assert main(["cameras", "colmap", str(sub), "--units", "m", "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "camera name: 'left/cam001' is not a plain file name" in err[0], err
+    assert [c["name"] for c in json.loads(out.read_text())["cameras"]] == ["cam000", "left/cam001", "cam002"]
+
+
 def test_a_folder_for_out_is_refused(tmp_path, capsys, formats):
     assert main(["cameras", "colmap", str(formats["colmap text"][0]), "--units", "m", "--out", str(tmp_path)]) == 1
     assert "--out names the camera file to write" in capsys.readouterr().err
