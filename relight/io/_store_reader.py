@@ -7,6 +7,7 @@ image at a time.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -99,6 +100,11 @@ class CaptureStore:
                                  f"{sorted(_ARRAYS)}")
         except (KeyError, TypeError, ValueError) as err:
             raise CaptureStoreError(f"{where}: missing or bad field ({err!r})") from None
+        if digests is None:
+            warnings.warn(f"{self.path}: a version {version} capture store, written before chunk digests: a missing "
+                          "or undecodable chunk is still refused, but a damaged chunk that still decodes cannot be "
+                          "detected. Rewrite it with this version (relight convert it to a folder and back)",
+                          UserWarning, stacklevel=3)
         if len(shape) != 4 or min(shape) < 1:
             raise CaptureStoreError(f"{where}: field 'shape' must be [V, L, P, C] of positive sizes, got {list(shape)}")
         self.shape = shape
