@@ -67,8 +67,7 @@ def _warn_unusable_names(cameras: dict, out: Path, args) -> None:
     here, where the name is made, not when the capture is first read."""
     import sys
 
-    from ..io import ImageFormatError
-    from ..io._errors import file_name
+    from ..io import ImageFormatError, file_name
 
     for name in cameras:
         try:

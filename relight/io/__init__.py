@@ -26,6 +26,7 @@ from ._errors import MAX_RADIANCE as MAX_RADIANCE
 from ._errors import ImageFormatError as ImageFormatError
 from ._errors import check_finite_output as check_finite_output
 from ._errors import check_radiance as check_radiance
+from ._errors import file_name as file_name
 from ._exr import ExrPart as ExrPart
 from ._exr import exr_header as exr_header
 from ._exr import read_exr as read_exr
@@ -146,6 +147,7 @@ __all__ = [
     "TextureSet",
     "check_finite_output",
     "check_radiance",
+    "file_name",
     "exr_header",
     "head_skin_textures",
     "is_diligent_folder",
