@@ -275,10 +275,10 @@ def _write_preview(path: Path, rgb: np.ndarray, cov: np.ndarray, exposure: float
     """A PNG preview: ``rgb`` tone-mapped at ``exposure``; with ``alpha``, RGBA, the colour
     unpremultiplied (PNG's alpha is straight) and A the coverage."""
     from ..image import to_uint8, tonemap
-    from ..io import check_finite_output, write_png
+    from ..io import write_png
     from ..results import writing
 
-    check_finite_output(rgb, path, "the relit image")
+    # rgb is the frame _write_exr has just written and checked (check_finite_output): nothing to check again.
     if not alpha:
         from ..io import write_preview
 

@@ -172,8 +172,7 @@ def _declared_png(path, side: int) -> None:
     import struct
     import zlib
 
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+    from tests.relight.test_fuzz_readers import _chunk as chunk
 
     z, row, parts = zlib.compressobj(9), bytes(side + 1), []
     for _ in range(side):
