@@ -8,7 +8,9 @@ when unknown). A phase starts with ``done = 0``, reported before any of its
 work (and so before its first JIT compile); each phase keeps its own count and
 total, and phases may interleave (a fit's rungs over its blocks). A consumer
 should time a phase's rate from its first ``done > 0``: the first unit pays
-the compile (the CLI's bars read "compiling" until then). Library functions
+the compile (the CLI's bars read "compiling" until then). Work that only some
+units need is a follow-on phase with no total (``Phase.follow_on``: a fit's
+later rounds, "fit ggx (more steps)"), so no phase's count waits on it. Library functions
 take ``progress=None`` (silent); the CLI passes progress bars
 (``relight/cli/_progress.py``'s ``Bar``).
 """
@@ -34,6 +36,7 @@ class Phase:
         if progress is not None and not callable(progress):
             raise TypeError(f"progress must be a callable progress(phase, done, total) or None, got {progress!r}")
         self.progress, self.name, self.total, self.done = progress, str(name), total, 0
+        self._follow: Phase | None = None
         if progress is not None:
             progress(self.name, 0, total)
 
@@ -41,3 +44,13 @@ class Phase:
         self.done += int(n)
         if self.progress is not None:
             self.progress(self.name, self.done, self.total)
+
+    def follow_on(self, suffix: str) -> Phase:
+        """The phase ``name + suffix`` (same ``progress``, no total): work that only some of this phase's
+        units need, such as a solver's later rounds for the samples its first round left unconverged,
+        counted apart so that this phase's count, rate and ETA stay true (each unit counted once, when its
+        first pass is done). Made at the first call, reporting ``done = 0`` then; the same object after,
+        so every block of a fit adds to one count."""
+        if self._follow is None:
+            self._follow = Phase(self.progress, self.name + str(suffix))
+        return self._follow

@@ -64,3 +64,30 @@ def _chunks_of(index, size):
         if n < size:
             idx = np.concatenate([idx, np.full(size - n, idx[-1])])
         yield idx, n
+
+
+class RoundsProgress:
+    """The progress of a solve in rounds with straggler compaction (:func:`relight.fitting._driver.run_rounds`,
+    the per-texel subsurface solve): a sample counts once on ``bar`` (a ``stage.Phase``, or None: silent) when
+    its first round is done, so the bar's rate is the solve's and the phase completes with the first round;
+    the samples that later rounds finish count on ``bar``'s follow-on "... (more steps)" (no total: how many
+    straggle is known only as the rounds go), made at its first finished chunk, so it never reads
+    "compiling" (the program is compiled by then)."""
+
+    def __init__(self, bar):
+        self.bar, self.more = bar, None
+
+    def chunk(self, first_round: bool, solved: int, finished: int) -> None:
+        """A chunk of ``solved`` samples is through one round, ``finished`` of them converged."""
+        if self.bar is None:
+            return
+        if first_round:
+            self.bar.advance(solved)
+            return
+        self.more = self.more or self.bar.follow_on(" (more steps)")
+        self.more.advance(finished)
+
+    def end(self, left: int) -> None:
+        """The rounds are over with ``left`` samples still at the step limit: done, as far as the fit goes."""
+        if self.more is not None and left:
+            self.more.advance(left)

@@ -46,7 +46,7 @@ import stage
 from ..io import CaptureSource, valid_counts
 from ..materials._maps import MODELS
 from . import _model as _fit_model
-from ._devices import _chunk_size, _chunks_of, _fit_devices, _placer
+from ._devices import RoundsProgress, _chunk_size, _chunks_of, _fit_devices, _placer
 from ._extrapolation import extrapolated_highlights
 from ._ladder import _assemble, _rungs, choose_rungs, finish_block, heldout_weights, specular_cosines
 from ._model import Layout
@@ -344,8 +344,8 @@ def run_rounds(arrays, index, lay, u0, start, solve, opts, bar):
     ``max_steps`` (straggler compaction), ``opts["rounds"]`` rounds.
     ``start(chunk arrays) -> u [size, k]`` when ``u0`` is None;
     ``solve(u, chunk arrays) -> (u, rms, code, steps, sigma, held-out MSE)``.
-    Counts the samples finished on ``bar`` (a ``stage.Phase``). Every chunk
-    goes to the devices through ``opts["put"]`` (:func:`_placer`)."""
+    Progress on ``bar`` (a ``stage.Phase``): :class:`RoundsProgress`. Every
+    chunk goes to the devices through ``opts["put"]`` (:func:`_placer`)."""
     dtype = arrays[0].dtype
     chunk = opts["size"]
     put = opts["put"]
@@ -368,16 +368,16 @@ def run_rounds(arrays, index, lay, u0, start, solve, opts, bar):
                             jax.ShapeDtypeStruct((lay.size,), jnp.result_type(float))).shape[0]
     sigma = np.zeros((n_all, n_phys), dtype)
     active = local
-    for _ in range(opts["rounds"]):
+    count = RoundsProgress(bar)
+    for r in range(opts["rounds"]):
         for idx, n in _chunks_of(active, chunk):
             out = solve(put(u[idx]), take(idx))
             uu, rr, cc, kk, ss, hh = (np.asarray(x)[:n] for x in out)
             sel = idx[:n]
             u[sel], rms[sel], code[sel], steps[sel], sigma[sel], hmse[sel] = uu, rr, cc, steps[sel] + kk, ss, hh
-            bar.advance(int(np.sum(cc != MAX_STEPS)))
+            count.chunk(r == 0, n, int(np.sum(cc != MAX_STEPS)))
         active = active[code[active] == MAX_STEPS]
         if len(active) == 0:
             break
-    if len(active):
-        bar.advance(len(active))
+    count.end(len(active))
     return dict(u=u, rms=rms, hmse=hmse, code=code, steps=steps, sigma=sigma)

@@ -55,7 +55,7 @@ import optimistix as optx
 
 import skin_bssrdf
 
-from ._devices import _chunks_of
+from ._devices import RoundsProgress, _chunks_of
 from ._result import MAX_STEPS, RESULTS, Fit, result_code
 
 # Standard deviation (in ln mfp) of the prior pulling each texel's mean free
@@ -297,7 +297,8 @@ def fit_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wl, ln_m
     f = lambda x: jnp.asarray(x, dt)  # noqa: E731
     active = np.arange(len(texels))
     per_round = min(_STEPS_PER_ROUND, max_steps)
-    for _ in range(-(-max_steps // per_round)):  # max_steps rounded up to whole rounds
+    count = RoundsProgress(bar)
+    for r in range(-(-max_steps // per_round)):  # max_steps rounded up to whole rounds
         for sel, m in _chunks_of(active, n):
             idx = texels[sel]
             a, ybar, c0, cnt = _normalised(data, lights, unit, idx)
@@ -306,13 +307,11 @@ def fit_texels(E, data: TexelData, geo: Geometry, unit, texels, lights, wl, ln_m
                                      f(prior[idx]), lo_, hi_, max_steps=per_round, rtol=_RTOL, atol=_ATOL)
             s = sel[:m]
             u[s], code[s], steps[s] = np.asarray(uu)[:m], np.asarray(cc)[:m], steps[s] + np.asarray(kk)[:m]
-            if bar is not None:
-                bar.advance(int(np.sum(np.all(code[s] != MAX_STEPS, axis=1))))
+            count.chunk(r == 0, m, int(np.sum(np.all(code[s] != MAX_STEPS, axis=1))))
         active = active[np.any(code[active] == MAX_STEPS, axis=1)]
         if len(active) == 0:
             break
-    if bar is not None and len(active):
-        bar.advance(len(active))
+    count.end(len(active))
     ln_m, A = _phys(jnp.asarray(u), lo_, hi_)
     return np.asarray(ln_m, np.float64), np.asarray(A, np.float64), code, steps
 

@@ -270,4 +270,6 @@ def test_two_views_and_progress():
     # Samples seen twice have 24 x 3 exact measurements, seen once 12 x 3: enough for 5 unknowns either way.
     assert _rel(f.rho_d, rho) < 1e-3
     assert _rel(f.alpha[:, :1], alpha) < 1e-3
-    assert calls and {c[0] for c in calls} == {"fit ggx"} and calls[-1][1:] == (surf.num_samples, surf.num_samples)
+    main = [c for c in calls if c[0] == "fit ggx"]  # stragglers' later rounds: "fit ggx (more steps)", no total
+    assert {c[0] for c in calls} <= {"fit ggx", "fit ggx (more steps)"}
+    assert main and main[-1][1:] == (surf.num_samples, surf.num_samples)

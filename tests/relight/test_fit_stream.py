@@ -87,7 +87,7 @@ def test_blocks_give_the_same_auto_fit(scene):
         assert total is None or 0 <= done <= total, (phase, done, total)
         last[phase] = (done, total)
     trials = [p for p in last if p.endswith("(held out)")]
-    refits = [p for p in last if not p.endswith("(held out)")]
+    refits = [p for p in last if not p.endswith(("(held out)", "(more steps)"))]
     assert len(trials) == 4 and all(last[p] == (P, P) for p in trials)
     assert all(last[p][0] == last[p][1] for p in refits)
     assert sum(last[p][1] for p in refits) == P
@@ -218,3 +218,39 @@ def test_four_devices_shard_the_solve_and_agree():
     assert out["shards"] and all(s[:2] == [4, 4] and s[2] % 4 == 0 for s in out["shards"]), out["shards"][:3]
     assert all(s[0] == 1 for s in out["one"])
     assert max(out["err"].values()) <= 1e-5, out["err"]
+
+
+def test_progress_counts_each_sample_once_when_its_first_round_is_done():
+    """The rounds' progress (issue 29: `fit lambert 61/5356 [02:13<1:11:20]` for a phase that ended seconds
+    later, when only converged samples counted): the rung's phase reaches its total when the first round has
+    been through every sample, one report per chunk; samples the later rounds finish count on the follow-on
+    phase "... (more steps)", with no total, ending at the number of stragglers (here a stub solver: sample i
+    converges in round i mod 3, those still at max_steps after the last round count as done)."""
+    from relight.fitting._driver import run_rounds
+    from relight.fitting._model import Layout
+    from relight.fitting._result import MAX_STEPS
+
+    n, size, lay = 10, 4, Layout(0, False, 0.01)
+    rounds_needed = np.arange(n) % 4  # 0: first round; 3: never, within 3 rounds
+    seen = np.zeros(n, int)
+
+    def solve(u, arrays):
+        (i,) = arrays
+        seen[i] += 1
+        done = seen[i] > rounds_needed[i]
+        code = np.where(done, 0, MAX_STEPS).astype(np.int32)
+        z = np.zeros(len(i))
+        return u, z, code, np.ones(len(i), np.int32), np.zeros((len(i), 3)), z
+
+    calls = []
+    bar = stage.Phase(lambda *a: calls.append(a), "fit lambert", n)
+    r = run_rounds((np.arange(n),), np.arange(n), lay, np.zeros((n, lay.size)), None, solve,
+                   {"size": size, "put": lambda x: x, "rounds": 3}, bar)
+    main = [c for c in calls if c[0] == "fit lambert"]
+    more = [c for c in calls if c[0] == "fit lambert (more steps)"]
+    assert [c[1] for c in main] == [0, 4, 8, 10] and all(c[2] == n for c in main)  # three chunks of round 1
+    assert calls.index(main[-1]) < calls.index(more[0])  # the phase is complete before any straggler reports
+    stragglers = int(np.sum(rounds_needed > 0))
+    assert more[0][1:] == (0, None) and more[-1][1:] == (stragglers, None)
+    assert all(b[1] >= a[1] for a, b in zip(more, more[1:], strict=False))
+    assert np.array_equal(np.asarray(r["code"]) == MAX_STEPS, rounds_needed == 3)
