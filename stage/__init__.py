@@ -23,6 +23,7 @@ from ._camera import orthographic as orthographic
 from ._camera import save_cameras as save_cameras
 from ._camera import undistort as undistort
 from ._capture import Capture as Capture
+from ._files import existing_path as existing_path
 from ._files import parse_json as parse_json
 from ._files import read_json as read_json
 from ._files import read_light_table as read_light_table

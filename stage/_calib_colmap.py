@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._calib_common import CENTRES_AT_HALVES, build_camera, existing_path, mm_per_unit_value, quaternion_to_matrix
+from ._calib_common import CENTRES_AT_HALVES, build_camera, mm_per_unit_value, quaternion_to_matrix
 from ._camera import Camera
+from ._files import existing_path
 
 # COLMAP's model ids and names (models.h), every one, so a refusal can name the model; the supported ones with
 # the number of their parameters.

@@ -6,7 +6,6 @@ checks on a file path, and the one way a reader turns what it read into a :class
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -49,31 +48,6 @@ def mm_per_unit_value(mm_per_unit: float | str) -> float:
         raise ValueError(f"argument 'mm_per_unit' must be a positive, finite number of mm per unit (or one of "
                          f"{sorted(UNIT_NAMES)}), got {mm_per_unit!r}")
     return float(mm_per_unit)
-
-
-def existing_path(path, what: str, folder: bool = False) -> Path:
-    """``path`` as a Path after checking that it exists and is a file (or, with ``folder``, a folder).
-
-    Args:
-        path: the path given by the caller.
-        what: what the path should hold, for the messages (e.g. "COLMAP model folder").
-        folder: whether a folder is expected instead of a file.
-
-    Returns:
-        The path.
-
-    Raises:
-        FileNotFoundError naming the path when nothing is there; ValueError when it is a folder where a file
-        is expected or the other way round.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such {what}")
-    if folder and not path.is_dir():
-        raise ValueError(f"{path}: expected a {what}, got a file")
-    if not folder and path.is_dir():
-        raise ValueError(f"{path}: expected a {what}, got a folder")
-    return path
 
 
 def quaternion_to_matrix(q, where: str) -> np.ndarray:

@@ -50,8 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._calib_common import CENTRES_AT_HALVES, build_camera, existing_path, mm_per_unit_value
+from ._calib_common import CENTRES_AT_HALVES, build_camera, mm_per_unit_value
 from ._camera import Camera
+from ._files import existing_path
 
 # Calibration terms that OpenCV's five coefficients cannot hold; a file with any of them non-zero is refused.
 _UNMAPPED = ("k4", "p3", "p4")

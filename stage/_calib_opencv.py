@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._calib_common import CENTRES_AT_INTEGERS, build_camera, existing_path, mm_per_unit_value, rodrigues_to_matrix
+from ._calib_common import CENTRES_AT_INTEGERS, build_camera, mm_per_unit_value, rodrigues_to_matrix
 from ._camera import Camera
-from ._files import read_json
+from ._files import existing_path, read_json
 
 _SPELLINGS = {
     "K": ("camera_matrix", "K", "cameraMatrix"),

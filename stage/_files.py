@@ -13,7 +13,45 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["parse_json", "read_json", "read_light_table"]
+__all__ = ["existing_path", "parse_json", "read_json", "read_light_table"]
+
+
+def existing_path(path, what: str, folder: bool = False, error: type[Exception] = ValueError,
+                  missing: type[Exception] = FileNotFoundError) -> Path:
+    """``path`` as a Path after checking that it is a regular file (links followed) or, with ``folder``, a
+    folder: the one rule for every reader of a user's file (stage's calibration readers, relight's image
+    readers). A FIFO, a device or a socket is refused by name,
+    since reading it would hang (a FIFO) or never end (/dev/zero).
+
+    Args:
+        path: the path given by the caller.
+        what: what the path should hold, for the messages (e.g. "COLMAP model folder").
+        folder: whether a folder is expected instead of a file.
+        error: the exception for something of the wrong kind (default ValueError).
+        missing: the exception when nothing is there (default FileNotFoundError).
+
+    Returns:
+        The path.
+
+    Raises:
+        ``missing`` saying "no such {what}" when nothing is there; ``error`` naming what is there instead
+        (a file where a folder is expected, a folder, a FIFO, a device, a socket).
+    """
+    import stat
+
+    path = Path(path)
+    if path.is_dir() if folder else path.is_file():
+        return path
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        raise missing(f"{path}: no such {what}") from None
+    if folder:
+        raise error(f"{path}: expected a {what}, got a file")
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "not a regular file")
+    raise error(f"{path}: is {kind}, not a regular file ({what} expected)")
 
 
 def parse_json(data: str | bytes, where, error: type[ValueError] = ValueError):

@@ -178,23 +178,13 @@ def check_image_size(path: str | os.PathLike, height: int, width: int, channels:
 
 
 def existing_file(path: str | os.PathLike, what: str, missing: type[Exception] = FileNotFoundError) -> Path:
-    """``path`` as a Path when it is a regular file (links followed). Nothing there: ``missing`` (FileNotFoundError
-    by default) saying "no such {what}". Something that is not a regular file (a folder, a FIFO, a device, a
-    socket): ImageFormatError saying what it is, since reading it would fail, hang (a FIFO) or never end
-    (/dev/zero). One rule for every image reader (issue 29: a FIFO given as an env map was "no such HDR file")."""
-    import stat
+    """``path`` as a Path when it is a regular file (links followed): ``stage.existing_path``, the one rule for a
+    user's file, with ImageFormatError for something that is not a regular file (a folder, a FIFO, a
+    device, a socket) and ``missing`` (FileNotFoundError by default) saying "no such {what}" when nothing is
+    there. Every image reader uses it (issue 29: a FIFO given as an env map was "no such HDR file")."""
+    import stage
 
-    p = Path(path)
-    if p.is_file():
-        return p
-    try:
-        mode = p.stat().st_mode
-    except OSError:
-        raise missing(f"{p}: no such {what}") from None
-    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode)
-            else "not a regular file")
-    raise ImageFormatError(f"{p}: is {kind}, not a regular file ({what} expected)")
+    return stage.existing_path(path, what, error=ImageFormatError, missing=missing)
 
 
 def check_finite_output(values: np.ndarray, path: str | os.PathLike, what: str = "image") -> None:
@@ -206,12 +196,21 @@ def check_finite_output(values: np.ndarray, path: str | os.PathLike, what: str =
     values = np.asarray(values)
     if not np.issubdtype(values.dtype, np.floating):
         return
+    bad = _non_finite(values)
+    if bad:
+        raise ImageFormatError(f"{path}: {what} has {bad}; not written. An input beyond range (an exposure, gain "
+                               "or intensity near 0 or huge) or a bug: check the inputs, and report it if they are "
+                               "sound")
+
+
+def _non_finite(values: np.ndarray) -> str:
+    """"N NaN/Inf values (first at index (i, j, ...))" for an array holding any, else "": the one account of
+    non-finite values that the input (:func:`check_radiance`) and output (:func:`check_finite_output`) checks give."""
     bad = ~np.isfinite(values)
-    if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ImageFormatError(f"{path}: {what} has {int(bad.sum())} NaN/Inf values (first at index {idx}); not "
-                               "written. An input beyond range (an exposure, gain or intensity near 0 or huge) or "
-                               "a bug: check the inputs, and report it if they are sound")
+    if not bad.any():
+        return ""
+    idx = tuple(int(i) for i in np.argwhere(bad)[0])
+    return f"{int(bad.sum())} NaN/Inf values (first at index {idx})"
 
 
 def check_radiance(values: np.ndarray, path: str | os.PathLike, what: str = "radiance") -> None:
@@ -225,13 +224,9 @@ def check_radiance(values: np.ndarray, path: str | os.PathLike, what: str = "rad
     first offending index so the pixel can be inspected.
     """
     values = np.asarray(values)
-    bad_nan = ~np.isfinite(values)
-    if bad_nan.any():
-        idx = tuple(int(i) for i in np.argwhere(bad_nan)[0])
-        raise ImageFormatError(
-            f"{path}: {what} has {int(bad_nan.sum())} NaN/Inf values (first at index {idx}); "
-            "expected finite, non-negative radiance"
-        )
+    bad = _non_finite(values)
+    if bad:
+        raise ImageFormatError(f"{path}: {what} has {bad}; expected finite, non-negative radiance")
     neg = values < 0
     if neg.any():
         idx = tuple(int(i) for i in np.argwhere(neg)[0])

@@ -106,6 +106,12 @@ def test_parser_constants_are_the_librarys():
 
     assert simulate._PRESET_NAMES == _common.SUBSURFACE_PRESETS
     assert PREVIEW_MIN_PX == LIBRARY_MIN_PX
+    # The stated size limits: the largest texel grid (a label map's) and image (a camera's).
+    from relight.cli._flags import LIMITS
+    from relight.io._regions import MAX_LABEL_PIXELS
+
+    assert LIMITS["--resolution"] ** 2 == MAX_LABEL_PIXELS
+    assert LIMITS["--image-size"] ** 2 == stage.MAX_CAMERA_PIXELS
 
 
 def test_the_dispatcher_help_lines_are_the_commands_own():

@@ -163,3 +163,22 @@ def test_read_json_names_the_file_for_any_bad_document(tmp_path, text):
     with pytest.raises(ValueError, match=r"rig\.json: not valid JSON"):
         stage.load_rig(path)
 
+
+
+def test_calibration_readers_name_what_is_not_a_regular_file(tmp_path):
+    """stage.existing_path, the one check before a user's file is read: a FIFO (whose read would hang), a
+    folder and a missing path are named, by every calibration reader, before any read."""
+    import os
+
+    fifo = tmp_path / "calib.yml"
+    os.mkfifo(fifo)
+    for read, what in ((stage.read_opencv_calibration, "OpenCV calibration file"),
+                       (stage.read_metashape_xml, "Metashape camera file")):
+        with pytest.raises(ValueError, match=rf"calib\.yml: is a FIFO \(named pipe\), not a regular file \({what}"):
+            read(fifo, 1.0)
+        with pytest.raises(ValueError, match=r"is a folder, not a regular file"):
+            read(tmp_path, 1.0)
+        with pytest.raises(FileNotFoundError, match=rf"nothing\.yml: no such {what}"):
+            read(tmp_path / "nothing.yml", 1.0)
+    with pytest.raises(ValueError, match="expected a COLMAP model folder, got a file"):
+        stage.read_colmap(fifo, 1.0)
