@@ -71,11 +71,11 @@ class RoundsProgress:
     the per-texel subsurface solve): a sample counts once on ``bar`` (a ``stage.Phase``, or None: silent) when
     its first round is done, so the bar's rate is the solve's and the phase completes with the first round;
     the samples that later rounds finish count on ``bar``'s follow-on "... (more steps)" (no total: how many
-    straggle is known only as the rounds go), made at its first finished chunk, so it never reads
-    "compiling" (the program is compiled by then)."""
+    straggle is known only as the rounds go), made when a later round first finishes a sample, so it never
+    reads "compiling" (the program is compiled by then) and never shows an empty count."""
 
     def __init__(self, bar):
-        self.bar, self.more = bar, None
+        self.bar, self.more, self.later = bar, None, False
 
     def chunk(self, first_round: bool, solved: int, finished: int) -> None:
         """A chunk of ``solved`` samples is through one round, ``finished`` of them converged."""
@@ -84,10 +84,16 @@ class RoundsProgress:
         if first_round:
             self.bar.advance(solved)
             return
-        self.more = self.more or self.bar.follow_on(" (more steps)")
-        self.more.advance(finished)
+        self.later = True
+        self._count(finished)
 
     def end(self, left: int) -> None:
-        """The rounds are over with ``left`` samples still at the step limit: done, as far as the fit goes."""
-        if self.more is not None and left:
-            self.more.advance(left)
+        """The rounds are over with ``left`` samples still at the step limit: done, as far as the fit goes
+        (already counted when the first round was the only one)."""
+        if self.bar is not None and self.later:
+            self._count(left)
+
+    def _count(self, n: int) -> None:
+        if n:
+            self.more = self.more or self.bar.follow_on(" (more steps)")
+            self.more.advance(n)

@@ -254,3 +254,10 @@ def test_progress_counts_each_sample_once_when_its_first_round_is_done():
     assert more[0][1:] == (0, None) and more[-1][1:] == (stragglers, None)
     assert all(b[1] >= a[1] for a, b in zip(more, more[1:], strict=False))
     assert np.array_equal(np.asarray(r["code"]) == MAX_STEPS, rounds_needed == 3)
+    # One round: every sample counted once, no follow-on phase.
+    calls.clear()
+    seen[:] = 0
+    bar = stage.Phase(lambda *a: calls.append(a), "fit lambert", n)
+    run_rounds((np.arange(n),), np.arange(n), lay, np.zeros((n, lay.size)), None, solve,
+               {"size": size, "put": lambda x: x, "rounds": 1}, bar)
+    assert {c[0] for c in calls} == {"fit lambert"} and calls[-1] == ("fit lambert", n, n)
