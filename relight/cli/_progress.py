@@ -90,8 +90,18 @@ class Bar:
         phase, done = str(phase), int(done)
         self._last = phase
         b = self._bars.get(phase)
+        if b is not None and done == 0 and b.n > 0:
+            # The phase starts again (the second pass of fit_with_subsurface): a count and clock of its own,
+            # the finished one's line out first.
+            old = self._bars.pop(phase)
+            self._running.pop(phase)
+            if self._lines is not None:
+                self._lines.close([old])
+            else:
+                old.close()
+            b = None
         if b is None:
-            first = next(iter(self._bars))
+            first = next(iter(self._bars), None)
             if len(self._bars) == 1 and self._bars[first].n == 0 and not self._running[first]:
                 # The command's own placeholder bar (nothing counted yet) becomes this phase's.
                 placeholder = self._bars.pop(first)
@@ -123,6 +133,7 @@ class _Phase:
         self.phase, self.total, self.n = phase, total, int(done)
         self.start = time.perf_counter()
         self.first = self.start if done else None
+        self.last = self.start  # when the count last grew: a phase printed at the close ends there, not at the close
         self.printed = False
 
 
@@ -143,6 +154,8 @@ class _PhaseLines:
     def advance(self, p: _Phase, done: int, first: bool = False) -> None:
         if first and p.first is None:
             p.first = time.perf_counter()
+        if int(done) > p.n:
+            p.last = time.perf_counter()
         p.n = int(done)
         self._maybe_print(p)
 
@@ -152,10 +165,9 @@ class _PhaseLines:
 
     def _print(self, p: _Phase) -> None:
         p.printed = True
-        now = time.perf_counter()
         count = f"{p.n}/{p.total}" if p.total else f"{p.n}"
         setup = "" if p.first is None or p.first - p.start < 0.05 else f" ({p.first - p.start:.1f} s before the first)"
-        print(f"{p.phase}: {count} in {now - p.start:.1f} s{setup}", file=self.stream, flush=True)
+        print(f"{p.phase}: {count} in {p.last - p.start:.1f} s{setup}", file=self.stream, flush=True)
 
     def close(self, phases) -> None:
         for p in phases:

@@ -221,6 +221,19 @@ def test_a_log_gets_one_plain_line_per_phase():
     assert [line.split(":")[0] for line in lines] == ["fit lambert", "fit ggx", "merge"], lines
     assert re.fullmatch(r"fit lambert: 10/10 in \d+\.\d s( \(\d+\.\d s before the first\))?", lines[0]), lines
     assert re.fullmatch(r"merge: 3 in \d+\.\d s.*", lines[2]) and not any(_eta(f) for f in lines), lines
+    # A phase without a total prints at the close, with the time to its last unit, not to the close.
+    stream = io.StringIO()
+    with Bar(None, "fit", quiet=False, file=stream) as b:
+        b("fit ggx (more steps)", 0, None)
+        b("fit ggx (more steps)", 5, None)
+        time.sleep(0.3)
+    assert re.fullmatch(r"fit ggx \(more steps\): 5 in 0\.[01] s\n", stream.getvalue()), stream.getvalue()
+    # A phase that starts again (done back to 0: a second pass) is a new count, the first one's line out first.
+    stream = io.StringIO()
+    with Bar(None, "fit", quiet=False, file=stream) as b:
+        for n in (0, 4, 0, 2):
+            b("fit ggx (more steps)", n, None)
+    assert re.findall(r": (\d+) in", stream.getvalue()) == ["4", "2"], stream.getvalue()
 
 
 def test_a_reading_phase_says_reading_and_quiet_draws_nothing():
