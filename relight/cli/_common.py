@@ -21,11 +21,14 @@ from ._flags import add_image_size as add_image_size
 from ._flags import add_index_flag as add_index_flag
 from ._flags import add_mesh_flags as add_mesh_flags
 from ._flags import add_out as add_out
+from ._flags import add_photo_texel_flags as add_photo_texel_flags
 from ._flags import add_rig_file_flags as add_rig_file_flags
 from ._flags import at_least as at_least
 from ._flags import envmap_path as envmap_path
 from ._flags import finish_parser as finish_parser
 from ._flags import mesh_from_args as mesh_from_args
+from ._flags import photo_mesh_from_args as photo_mesh_from_args
+from ._flags import refuse_photo_flags as refuse_photo_flags
 from ._flags import warn_mesh_size as warn_mesh_size
 from ._guard import CLIError as CLIError
 from ._guard import check_numbers as check_numbers

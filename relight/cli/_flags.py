@@ -115,6 +115,48 @@ def warn_mesh_size(command: str, mesh, rig) -> None:
         print(f"relight {command}: warning: {msg}", file=sys.stderr)
 
 
+def add_photo_texel_flags(p: argparse.ArgumentParser, what: str) -> None:
+    """How a photo capture is resampled onto a mesh's texel grid: ``--mesh`` and its placement (required),
+    ``--resolution``, ``--grazing-deg``, ``--min-views`` (``relight.io.photos_to_texels``), and the rig file's
+    ``--rig-units`` / ``--rig-up``. ``what``: to what the flags apply, for the help."""
+    add_mesh_flags(p, f"{what} (required; a texel capture records its own): the subject's mesh with UVs, in the "
+                      "cameras' frame, or 'head' for the bundled head")
+    p.add_argument("--resolution", type=int, default=256, help=f"{what}: texel grid N x N (default 256)")
+    p.add_argument("--grazing-deg", type=float, default=80.0,
+                   help=f"{what}: drop views more than this far from a texel's normal (default 80)")
+    p.add_argument("--min-views", type=int, default=1,
+                   help=f"{what}: texels seen by fewer cameras count as unseen (default 1)")
+    add_rig_file_flags(p)
+
+
+def photo_mesh_from_args(args, capture_dir) -> dict:
+    """``{"mesh": stage.Mesh, "mesh_info": its spec}`` of a photo capture's ``--mesh`` flags, the other
+    :func:`add_photo_texel_flags` checked; CLIError on bad ones."""
+    from ..io import spec_mesh
+
+    if args.mesh is None:
+        raise CLIError(f"{capture_dir} is a photo capture (camera space): --mesh MESH is needed to resample it onto "
+                       "a texel grid (a mesh with UVs in the cameras' frame, mm; 'head' for the bundled head)")
+    at_least("--resolution", args.resolution, 1)
+    at_least("--min-views", args.min_views, 1)
+    if not 0 < args.grazing_deg <= 90:
+        raise CLIError(f"--grazing-deg must be in (0, 90], got {args.grazing_deg}")
+    try:
+        info = mesh_from_args(args)
+    except FileNotFoundError as err:
+        raise CLIError(f"--mesh: {err}") from None
+    return {"mesh": spec_mesh(info, "--mesh"), "mesh_info": info}
+
+
+def refuse_photo_flags(args, why: str) -> None:
+    """CLIError when a flag of :func:`add_photo_texel_flags` that only photo captures take was given."""
+    given = [f for f, v in (("--mesh", args.mesh), ("--units", args.units), ("--scale", args.scale),
+                            ("--center", args.center), ("--rig-units", args.rig_units), ("--rig-up", args.rig_up))
+             if v is not None]
+    if given:
+        raise CLIError(f"{' / '.join(given)}: {why}")
+
+
 def add_rig_file_flags(p: argparse.ArgumentParser) -> None:
     """``--rig-units`` / ``--rig-up``: what a rig file does not record (a .npy or
     .txt position table: ``stage.load_rig_file``), or an override of what it does."""

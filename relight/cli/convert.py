@@ -1,12 +1,26 @@
 """``relight convert SRC DST``: a capture folder to a capture store (Zarr v3,
-``DST`` ending in ``.zarr``) or a capture store back to a capture folder
-(docs/relight_io.md, "Capture store")."""
+``DST`` ending in ``.zarr``), a capture store back to a capture folder
+(docs/relight_io.md, "Capture store"), or a photo capture resampled onto a
+mesh's texel grid into a texel capture store, streamed in bounded memory
+(``relight.io.photos_to_texel_store``), which ``relight fit`` then fits."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import INDEX_FRAMES, INDEX_SIZE, CLIError, add_index_flag, bar, finish_parser, summary, write_index_page
+from ._common import (
+    INDEX_FRAMES,
+    INDEX_SIZE,
+    CLIError,
+    add_index_flag,
+    add_photo_texel_flags,
+    bar,
+    finish_parser,
+    photo_mesh_from_args,
+    refuse_photo_flags,
+    summary,
+    write_index_page,
+)
 
 _SUFFIX = ".zarr"
 
@@ -14,10 +28,14 @@ _SUFFIX = ".zarr"
 def add_parser(sub) -> None:
     p = sub.add_parser("convert", help="capture folder <-> capture store (.zarr, chunked Zarr v3)",
                        description="Convert a capture folder (one EXR per view and light) to a chunked, compressed "
-                                   "Zarr v3 capture store (DST ending in .zarr), or a store back to a folder. The "
+                                   "Zarr v3 capture store (DST ending in .zarr), or a store back to a folder; or "
+                                   "resample a photo capture (with --mesh) onto the mesh's texel grid into a texel "
+                                   "capture store, a light chunk of photographs at a time, for `relight fit DST`. The "
                                    "output is written under a temporary name and renamed into place.")
-    p.add_argument("src", help="a capture folder (capture.json) or a capture store (.zarr)")
-    p.add_argument("dst", help="the store to write (.zarr) from a folder, or the folder to write from a store")
+    p.add_argument("src", help="a capture folder (capture.json), a capture store (.zarr) or a photo capture")
+    p.add_argument("dst", help="the store to write (.zarr) from a folder or photos, or the folder to write from a "
+                               "store")
+    add_photo_texel_flags(p, "photo captures")
     add_index_flag(p)
     finish_parser(p, run)
 
@@ -36,10 +54,16 @@ def run(args) -> int:
         raise CLIError(f"{src}: no such capture folder or store")
     if src.resolve() == dst.resolve():
         raise CLIError(f"{dst}: the destination is the source")
-    if (src / "capture.json").is_file():
-        if is_photo_capture(src):
-            raise CLIError(f"{src}: a photo capture (capture_layout.md); convert takes relight capture folders "
-                           "(`relight simulate`'s) and capture stores")
+    photos = (src / "capture.json").is_file() and is_photo_capture(src)
+    if not photos:
+        refuse_photo_flags(args, f"photo captures only; {src} is not one")
+    if photos:
+        if dst.suffix != _SUFFIX:
+            raise CLIError(f"{dst}: a photo capture converts to a texel capture store, whose name must end in "
+                           f"{_SUFFIX}")
+        _photos_to_store(args, src, dst)
+        what = "store"
+    elif (src / "capture.json").is_file():
         if dst.suffix != _SUFFIX:
             raise CLIError(f"{dst}: a capture folder converts to a store, whose name must end in {_SUFFIX}")
         with bar(None, "convert", args.quiet) as b:
@@ -71,3 +95,22 @@ def run(args) -> int:
         print(f"wrote {what} {dst}: {V} view(s) x {L} lights x {P} samples x {C} channels, {store.dtype.name}; "
               f"store {on_disk / 2**20:.1f} MiB ({store.nbytes / max(on_disk, 1):.2f}x compression)")
     return 0
+
+
+def _photos_to_store(args, src: Path, dst: Path) -> None:
+    """``relight convert PHOTOS DST.zarr --mesh MESH``: :func:`relight.io.photos_to_texel_store`."""
+    from ..io import mesh_size_warning, photos_to_texel_store, read_photo_capture
+
+    mesh = photo_mesh_from_args(args, src)
+    photos = read_photo_capture(src, rig_units=args.rig_units, rig_up=args.rig_up)
+    warning = mesh_size_warning(mesh["mesh"], photos.rig)
+    if warning:
+        import sys
+
+        print(f"relight convert: warning: {warning}", file=sys.stderr)
+    with bar(None, "convert", args.quiet) as b:
+        _, report = photos_to_texel_store(photos, mesh["mesh"], args.resolution, dst, surface_info=mesh["mesh_info"],
+                                          grazing_deg=args.grazing_deg, min_views=args.min_views, progress=b)
+    if summary(args) and report.n_unseen:
+        print(f"{report.n_unseen} of the {report.texels} texels are unseen (no camera sees them): they hold no "
+              "valid observation")

@@ -17,16 +17,16 @@ from ._common import (
     CLIError,
     add_envmap,
     add_index_flag,
-    add_mesh_flags,
     add_out,
-    add_rig_file_flags,
+    add_photo_texel_flags,
     at_least,
     bar,
     check_out,
     envmap_path,
     finish_parser,
-    mesh_from_args,
     output_set,
+    photo_mesh_from_args,
+    refuse_photo_flags,
     summary,
     write_index_page,
     write_settings,
@@ -52,14 +52,7 @@ def add_parser(sub) -> None:
                                    "set, a Mitsuba 3 scene, previews, report.json/report.md and settings.json.")
     p.add_argument("capture", metavar="CAPTURE_DIR",
                    help="capture folder (capture.json, rig.json, cameras.json): texel-space or photos")
-    add_mesh_flags(p, "photo captures (required; a texel capture records its own): the subject's mesh with UVs, "
-                      "in the cameras' frame, or 'head' for the bundled head")
-    p.add_argument("--resolution", type=int, default=256, help="photo captures: texel grid N x N (default 256)")
-    p.add_argument("--grazing-deg", type=float, default=80.0,
-                   help="photo captures: drop views more than this far from a texel's normal (default 80)")
-    p.add_argument("--min-views", type=int, default=1,
-                   help="photo captures: texels seen by fewer cameras count as unseen (default 1)")
-    add_rig_file_flags(p)
+    add_photo_texel_flags(p, "photo captures")
     p.add_argument("--subsample", type=int, default=1,
                    help="DiLiGenT folders: fit every k-th pixel in x and y (quick looks; default 1: all)")
     add_out(p, "output folder for the map set")
@@ -130,9 +123,9 @@ def run(args) -> int:
     if args.subsample != 1:
         raise CLIError("--subsample applies to DiLiGenT folders only")
     if not photos:
-        _refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig (they "
+        refuse_photo_flags(args, f"{capture_dir} is a texel-space capture, which records its mesh and rig (they "
                                   "apply to photo captures)")
-    mesh = _photo_mesh(args, capture_dir) if photos else None
+    mesh = photo_mesh_from_args(args, capture_dir) if photos else None
     # Refused before the capture is read; output_set checks again with the folder locked.
     check_out(args.out, "fit", keep=(PARTS,))
     with output_set(args.out, "fit", args.quiet, keep=(PARTS,)) as tmp:
@@ -245,38 +238,11 @@ def _check_subsurface_flags(args, capture_dir: Path, kind: str) -> None:
                    "texel-space captures only (`relight simulate`'s)")
 
 
-def _refuse_photo_flags(args, why: str) -> None:
-    """CLIError when a flag that only photo captures take was given."""
-    given = [f for f, v in (("--mesh", args.mesh), ("--units", args.units), ("--scale", args.scale),
-                            ("--center", args.center), ("--rig-units", args.rig_units), ("--rig-up", args.rig_up))
-             if v is not None]
-    if given:
-        raise CLIError(f"{' / '.join(given)}: {why}")
-
-
-def _photo_mesh(args, capture_dir: Path) -> dict:
-    """fit_folder's ``mesh`` and ``mesh_info`` of a photo capture's --mesh flags; CLIError on bad ones."""
-    from ..io import spec_mesh
-
-    if args.mesh is None:
-        raise CLIError(f"{capture_dir} is a photo capture (camera space): --mesh MESH is needed to resample it onto "
-                       "a texel grid (a mesh with UVs in the cameras' frame, mm; 'head' for the bundled head)")
-    at_least("--resolution", args.resolution, 1)
-    at_least("--min-views", args.min_views, 1)
-    if not 0 < args.grazing_deg <= 90:
-        raise CLIError(f"--grazing-deg must be in (0, 90], got {args.grazing_deg}")
-    try:
-        info = mesh_from_args(args)
-    except FileNotFoundError as err:
-        raise CLIError(f"--mesh: {err}") from None
-    return {"mesh": spec_mesh(info, "--mesh"), "mesh_info": info}
-
-
 def _run_diligent(args, folder: Path, devices) -> int:
     """``relight fit DILIGENT_DIR``: ``relight.fitting.fit_diligent_folder``."""
     from ..fitting import DILIGENT_MODEL, FitOptions, fit_diligent_folder
 
-    _refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
+    refuse_photo_flags(args, f"{folder} is a DiLiGenT folder (one orthographic view, calibrated light directions)")
     if args.resume:
         raise CLIError(f"--resume: {folder} is a DiLiGenT folder, fitted in one go (no parts)")
     at_least("--subsample", args.subsample, 1)

@@ -49,6 +49,7 @@ from ._pfm import read_pfm as read_pfm
 from ._pfm import write_pfm as write_pfm
 from ._photo_check import PhotoCheck as PhotoCheck
 from ._photo_check import check_photo_capture as check_photo_capture
+from ._photo_store import photos_to_texel_store as photos_to_texel_store
 from ._photo_texels import PhotoTexelReport as PhotoTexelReport
 from ._photo_texels import photos_to_texels as photos_to_texels
 from ._photos import PhotoCapture as PhotoCapture
@@ -163,6 +164,7 @@ __all__ = [
     "mesh_size_warning",
     "mesh_spec",
     "open_capture",
+    "photos_to_texel_store",
     "photos_to_texels",
     "PhotoCheck",
     "read_capture",

@@ -73,6 +73,23 @@ class PhotoTexelReport:
                 "shadows": bool(self.shadows), "sampling": self.sampling}
 
 
+def check_texel_arguments(where: str, grazing_deg: float, min_views: int) -> None:
+    """ValueError naming ``grazing_deg`` outside (0, 90] or ``min_views`` below 1."""
+    if not 0 < grazing_deg <= 90:
+        raise ValueError(f"{where}: grazing_deg must be in (0, 90], got {grazing_deg}")
+    if int(min_views) < 1:
+        raise ValueError(f"{where}: min_views must be >= 1, got {min_views}")
+
+
+def sample_taps(rad: np.ndarray, ok_px: np.ndarray, taps: np.ndarray, weights: np.ndarray):
+    """Bilinear samples of images at texels: ``rad`` [L, H * W, C] and its validity ``ok_px`` [L, H * W], the
+    texels' four pixel indices ``taps`` [n, 4] and bilinear ``weights`` [n, 4]. Returns radiance float32
+    [L, n, C] and validity [L, n], valid only where all four taps are (no sample mixes in background or
+    clipped pixels)."""
+    return (np.einsum("lnkc,nk->lnc", rad[:, taps], weights.astype(np.float32)),
+            np.all(ok_px[:, taps], axis=2))
+
+
 def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int], *,
                      grazing_deg: float = 80.0, min_views: int = 1, shadows: bool = True,
                      progress=None) -> tuple[stage.Capture, stage.Surface, PhotoTexelReport]:
@@ -102,10 +119,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
     :class:`PhotoTexelReport`. ``progress(phase, done, total)``: phase
     "photos to texels", cameras done of V.
     """
-    if not 0 < grazing_deg <= 90:
-        raise ValueError(f"photos_to_texels: grazing_deg must be in (0, 90], got {grazing_deg}")
-    if int(min_views) < 1:
-        raise ValueError(f"photos_to_texels: min_views must be >= 1, got {min_views}")
+    check_texel_arguments("photos_to_texels", grazing_deg, min_views)
     surface = stage.texel_samples(mesh, resolution)
     P, V, L = surface.num_samples, photos.n_views, photos.n_lights
     lit = np.asarray(stage.light_visibility(mesh, surface, photos.rig), bool).T if shadows else None  # [L, P]
@@ -128,9 +142,7 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
         taps, w, cos_o, seen, reasons = stage.project_texels(mesh, surface, view.camera, mask=view.mask,
                                                              grazing_deg=grazing_deg, occluder=occluder)
         idx = np.flatnonzero(seen)
-        t, wt = taps[idx], w[idx].astype(np.float32)
-        radiance[v][:, idx] = np.einsum("lnkc,nk->lnc", rad[:, t], wt)
-        obs = np.all(ok_px[:, t], axis=2)  # [L, n]
+        radiance[v][:, idx], obs = sample_taps(rad, ok_px, taps[idx], w[idx])  # [L, n, C], [L, n]
         if lit is not None:
             obs &= lit[:, idx]
         mask[v][:, idx] = obs

@@ -355,6 +355,16 @@ class CaptureStoreWriter:
                     self._done.add(key)
                     self._bar.advance(1)
 
+    def add_metadata(self, entries: Mapping) -> None:
+        """Add JSON-able ``entries`` to the metadata the manifest records at :meth:`close` (what is known only
+        once the data is written: a conversion's report). ValueError when they are not JSON-able."""
+        extra = jsonable(dict(entries))
+        try:
+            json.dumps(extra, allow_nan=False)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{self.path}: metadata is not JSON-able ({err})") from None
+        self._metadata.update(extra)
+
     def abort(self) -> None:
         """Delete the temporary store; the target is left as it was."""
         self._closed = True
