@@ -21,12 +21,13 @@ from relight.io import (
 from .test_photo_texels import RES, scene  # noqa: F401  (the module's fixture, built once here)
 
 
-@pytest.mark.parametrize("min_views", [1, 2])
-def test_the_store_holds_what_photos_to_texels_gives(scene, tmp_path, min_views):  # noqa: F811
+def test_the_store_holds_what_photos_to_texels_gives(scene, tmp_path):  # noqa: F811
     """Every texel's observations, validity and the report are those of the in-memory resampling, exactly
-    (the same taps and weights; light chunks of 5, which do not divide the 162 lights); texels off the atlas
-    hold nothing valid; the store's metadata rebuilds the surface, and a fit of the store equals the fit of
-    the in-memory capture."""
+    (the same taps and weights; light chunks of 5, which do not divide the 162 lights; min_views 2, so the
+    geometry pre-pass decides which texels count as seen); texels off the atlas hold nothing valid; the store's
+    metadata rebuilds the surface, and a fit of the store equals the fit of the in-memory capture. (min_views
+    1 and the CLI: test_cli_convert_then_fit.)"""
+    min_views = 2
     mesh, _, _, _, masked, _ = scene
     photos = read_photo_capture(masked)
     cap, surface, ref = photos_to_texels(photos, mesh, RES, min_views=min_views)
@@ -46,17 +47,16 @@ def test_the_store_holds_what_photos_to_texels_gives(scene, tmp_path, min_views)
         np.testing.assert_array_equal(getattr(report, k), getattr(ref, k), err_msg=k)
     assert report.rejected == ref.rejected and np.allclose(report.valid_fraction, ref.valid_fraction)
     assert store.metadata["photos"] == ref.to_dict() and store.metadata["space"] == "texel"
-    if min_views == 1:
-        streamed, s2, _, _ = open_texel_capture(path)  # the texels with an observation
-        f_store = relight.fit(streamed, s2, model="lambert")
-        keep = np.searchsorted(idx, np.asarray(s2.texel_index))
-        f_mem = relight.fit(type(cap)(cap.radiance[:, :, keep], cap.mask[:, :, keep], cap.rig, cap.cameras),
-                            surface.subset(keep), model="lambert")
-        np.testing.assert_allclose(np.asarray(f_store.rho_d), np.asarray(f_mem.rho_d), rtol=1e-5)
+    streamed, s2, _, _ = open_texel_capture(path)  # the texels with an observation
+    f_store = relight.fit(streamed, s2, model="lambert")
+    keep = np.searchsorted(idx, np.asarray(s2.texel_index))
+    f_mem = relight.fit(type(cap)(cap.radiance[:, :, keep], cap.mask[:, :, keep], cap.rig, cap.cameras),
+                        surface.subset(keep), model="lambert")
+    np.testing.assert_allclose(np.asarray(f_store.rho_d), np.asarray(f_mem.rho_d), rtol=1e-5)
 
 
 def test_memory_is_set_by_the_light_chunk(scene, tmp_path):  # noqa: F811
-    """Peak traced memory (numpy's allocations) of the in-memory resampling against the streamed one with 2
+    """Peak traced memory (numpy's allocations) of the in-memory resampling against the streamed one with 6
     lights per read: the in-memory path holds a camera's whole stack of 162 photographs (and the whole texel
     capture), the streamed one never does, so its peak is lower by at least half a stack. (The rest of both
     peaks is the mesh, its BVH and the per-texel geometry, the same in both.)"""
@@ -65,7 +65,7 @@ def test_memory_is_set_by_the_light_chunk(scene, tmp_path):  # noqa: F811
     peaks = {}
     for name, run in (("memory", lambda: photos_to_texels(photos, mesh, RES)),
                       ("stream", lambda: photos_to_texel_store(photos, mesh, RES, tmp_path / "s.zarr",
-                                                               surface_info=mesh_spec(None), light_chunk=2))):
+                                                               surface_info=mesh_spec(None), light_chunk=6))):
         tracemalloc.start()
         run()
         peaks[name] = tracemalloc.get_traced_memory()[1]

@@ -1,0 +1,163 @@
+"""A light-stage delivery at realistic sizes, end to end through the command line: photographs -> texel store ->
+fit -> render, with the wall time and peak resident memory of every stage, and the decode rate of the same
+photographs with a plain OpenEXR loop as the baseline measured in the same run.
+
+Per size S (image side in pixels; the texel grid is S x S too): ``relight simulate --space image`` writes the
+delivery (the bundled head, the full Light Stage X, 3 cameras over 60 degrees, one float32 EXR per camera and
+light, Poisson + read noise through the sensor), then, each its own process:
+
+* ``decode``: the baseline, every photograph of the delivery read with ``OpenEXR.File`` in a loop (no
+  resampling, no writing): what reading the delivery costs at the decoder's speed;
+* ``convert``: ``relight convert PHOTOS S.zarr --mesh head --resolution S`` (``relight.io.photos_to_texel_store``:
+  a light chunk of photographs at a time into the texel store);
+* ``fit``: ``relight fit S.zarr --model ggx`` (block by block from the store; compile included);
+* ``render``: ``relight render FIT --image-size S`` (the fitted maps under the bundled environment map).
+
+Throughput: pixel-observations (cameras x lights x S^2) per second in for decode and convert, fitted texels per
+second for the fit. The peak of each process is its own (``os.wait4``'s ``ru_maxrss``). The simulation is the
+data generator, not a stage: it holds every photograph in memory (3 x 346 x S^2 x 3 float32: 13 GiB at 1024).
+
+    python scripts/bench_delivery.py                      # 256 and 512
+    python scripts/bench_delivery.py --sizes 256,512,1024 --keep /tmp/delivery
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from _common import FIG, ROOT, machine, parser
+
+STAGES = ("simulate", "decode", "convert", "fit", "render")
+_DECODE = """
+import sys, time, json, OpenEXR
+files = sys.argv[1:]
+t = time.perf_counter(); n = 0
+for f in files:
+    with OpenEXR.File(f) as e:
+        for c in e.channels().values():
+            n += c.pixels.size
+print(json.dumps({"seconds": time.perf_counter() - t, "values": n}))
+"""
+
+
+def _run(cmd: list[str], log: Path) -> tuple[float, float, str]:
+    """Run ``cmd`` (cwd: the repository) with stdout and stderr into ``log``; (wall seconds, peak RSS MiB, its
+    stdout's last line). A failing command stops the benchmark with the tail of its log."""
+    t = time.perf_counter()
+    with open(log, "w") as out:
+        p = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
+        _, status, usage = os.wait4(p.pid, 0)
+    seconds = time.perf_counter() - t
+    p.returncode = os.waitstatus_to_exitcode(status)
+    text = log.read_text()
+    if p.returncode:
+        raise SystemExit(f"failed ({' '.join(map(str, cmd))}):\n{text[-3000:]}")
+    last = text.strip().splitlines()[-1] if text.strip() else ""
+    return seconds, usage.ru_maxrss / 1024.0, last
+
+
+def _cameras(path: Path, size: int) -> None:
+    """Three cameras of size x size pixels over 60 degrees around the front of the bundled head, framing it."""
+    import numpy as np
+
+    import stage
+
+    v = np.asarray(stage.load_head().vertices, np.float64)
+    c = tuple(0.5 * (v.min(0) + v.max(0)))
+    cams = stage.camera_ring(3, 1300.0, target=c, fov_deg=20.0, width=size, height=size, start_deg=-30, arc_deg=60)
+    stage.save_cameras(path, cams, names=["left", "front", "right"])
+
+
+def bench_size(size: int, work: Path, lights: int) -> dict:
+    """Every stage at one size, in ``work``; the row of the table."""
+    relight = [sys.executable, "-m", "relight.cli"]
+    cams = work / "cameras.json"
+    _cameras(cams, size)
+    photos, store, fit, render = (work / n for n in ("photos", f"{size}.zarr", "fit", "render"))
+    rig = ["--rig", "lsx" if lights == 346 else f"dome:{lights}"]
+    row = {"size": size, "texels": size * size}
+    stages = {}
+    stages["simulate"] = _run([*relight, "simulate", "--space", "image", *rig, "--camera", str(cams), "--noise",
+                               "2000", "--read-noise", "2", "--out", str(photos), "--no-index", "-q"],
+                              work / "simulate.log")
+    files = sorted(str(p) for p in photos.rglob("*.exr") if "preview" not in p.name)
+    stages["decode"] = _run([sys.executable, "-c", _DECODE, *files], work / "decode.log")
+    stages["convert"] = _run([*relight, "convert", str(photos), str(store), "--mesh", "head", "--resolution",
+                              str(size), "--no-index", "-q"], work / "convert.log")
+    stages["fit"] = _run([*relight, "fit", str(store), "--model", "ggx", "--out", str(fit), "--no-index", "-q"],
+                         work / "fit.log")
+    stages["render"] = _run([*relight, "render", str(fit), "--image-size", str(size), "--out", str(render),
+                             "--no-index", "-q"], work / "render.log")
+    report = json.loads((fit / "report.json").read_text())
+    obs = 3 * lights * size * size
+    decoded = json.loads(stages["decode"][2])
+    row.update({f"{k}_s": round(v[0], 1) for k, v in stages.items()})
+    row.update({f"{k}_peak_mib": round(v[1]) for k, v in stages.items()})
+    row.update(observations=obs, photo_files=len(files), decode_values=int(decoded["values"]),
+               seen_texels=int(report["seen_samples"]),
+               decode_obs_per_s=obs / stages["decode"][0], convert_obs_per_s=obs / stages["convert"][0],
+               fit_texels_per_s=report["seen_samples"] / stages["fit"][0])
+    return row
+
+
+def _table(rows: list[dict], cmd: str) -> str:
+    lines = [f"Machine: {machine()}. Command: `{cmd}`.", "",
+             "Wall time (s) and peak resident memory (MiB) of each stage, each its own process. Decode: the "
+             "photographs read by a plain OpenEXR loop (the baseline); convert: `relight convert PHOTOS S.zarr "
+             "--mesh head` (photographs to the texel store, a light chunk at a time); fit: `relight fit S.zarr "
+             "--model ggx` over the texels a camera sees (compile included); render: `relight render FIT`.", "",
+             "| size (px = texels) | simulate s | decode s | convert s (x decode) | fit s | render s | "
+             "peak MiB: convert / fit / render | convert Mobs/s (decode) | fit texels/s | seen texels |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['size']}^2 | {r['simulate_s']} | {r['decode_s']} | {r['convert_s']} "
+            f"({r['convert_s'] / max(r['decode_s'], 1e-9):.1f}x) | {r['fit_s']} | {r['render_s']} | "
+            f"{r['convert_peak_mib']} / {r['fit_peak_mib']} / {r['render_peak_mib']} | "
+            f"{r['convert_obs_per_s'] / 1e6:.1f} ({r['decode_obs_per_s'] / 1e6:.1f}) | "
+            f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} |")
+    if len(rows) > 1:
+        a, b = rows[0], rows[-1]
+        lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: convert "
+                      f"{b['convert_peak_mib'] / a['convert_peak_mib']:.2f}x, fit "
+                      f"{b['fit_peak_mib'] / a['fit_peak_mib']:.2f}x, render "
+                      f"{b['render_peak_mib'] / a['render_peak_mib']:.2f}x (the capture grew "
+                      f"{b['observations'] / a['observations']:.0f}x)."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--sizes", default="256,512", help="image sides (= texel grid sides), comma-separated")
+    ap.add_argument("--lights", type=int, default=346, help="346: the Light Stage X; else a dome:N rig")
+    ap.add_argument("--keep", type=Path, default=None, help="keep each size's files under this folder")
+    ap.add_argument("--out", type=Path, default=FIG, help="where delivery.md / delivery.json go")
+    a = ap.parse_args(argv)
+    sizes = [int(s) for s in a.sizes.split(",")]
+    rows = []
+    for size in sizes:
+        work = Path(tempfile.mkdtemp(prefix=f"delivery{size}_")) if a.keep is None else a.keep / str(size)
+        work.mkdir(parents=True, exist_ok=True)
+        try:
+            rows.append(bench_size(size, work, a.lights))
+            print(json.dumps(rows[-1]), flush=True)
+        finally:
+            if a.keep is None:
+                shutil.rmtree(work, ignore_errors=True)
+    cmd = "python scripts/bench_delivery.py" + ("" if a.sizes == "256,512" else f" --sizes {a.sizes}") + (
+        "" if a.lights == 346 else f" --lights {a.lights}")
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "delivery.json").write_text(json.dumps({"machine": machine(), "command": cmd, "rows": rows}, indent=1))
+    (a.out / "delivery.md").write_text(_table(rows, cmd))
+    print(_table(rows, cmd))
+
+
+if __name__ == "__main__":
+    main()
