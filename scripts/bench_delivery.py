@@ -77,7 +77,7 @@ def _cameras(path: Path, size: int) -> None:
 
 def bench_size(size: int, work: Path, lights: int) -> dict:
     """Every stage at one size, in ``work``; the row of the table."""
-    relight = [sys.executable, "-m", "relight.cli"]
+    relight = [sys.executable, "-c", "import sys; from relight.cli import main; sys.exit(main(sys.argv[1:]))"]
     cams = work / "cameras.json"
     _cameras(cams, size)
     photos, store, fit, render = (work / n for n in ("photos", f"{size}.zarr", "fit", "render"))
