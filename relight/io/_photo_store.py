@@ -114,12 +114,8 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                 _write_grid(writer, v, l0, l1, N, grid[idx], np.where(obs[..., None], rad, np.float32(0)), obs)
                 bar.advance(l1 - l0)
             valid_frac.append(n_valid / (len(idx) * L) if len(idx) else 0.0)
-        views = np.sum(weight > 0, axis=0).astype(np.int64)
-        report = PhotoTexelReport(texels=P, views_per_texel=views, unseen=views < int(min_views),
-                                  coverage=surface.to_texture(views.astype(np.int32), fill=np.int32(-1)),
-                                  weight=weight, rejected=tuple(rejected), valid_fraction=tuple(valid_frac),
-                                  names=tuple(photos.names), grazing_deg=float(grazing_deg),
-                                  min_views=int(min_views), shadows=bool(shadows))
+        report = PhotoTexelReport.of(surface, weight, rejected, valid_frac, photos.names, grazing_deg=grazing_deg,
+                                     min_views=min_views, shadows=shadows)
         writer.add_metadata({"photos": report.to_dict()})
     return surface, report
 

@@ -56,6 +56,17 @@ class PhotoTexelReport:
     shadows: bool
     sampling: str = SAMPLING
 
+    @classmethod
+    def of(cls, surface: stage.Surface, weight: np.ndarray, rejected, valid_fraction, names, *, grazing_deg: float,
+           min_views: int, shadows: bool) -> PhotoTexelReport:
+        """The report of a resampling from its per-view ``weight`` [V, P] (cos theta_o, 0 where unseen):
+        the view counts, the unseen texels and the coverage map derive from it."""
+        views = np.sum(weight > 0, axis=0).astype(np.int64)
+        return cls(texels=surface.num_samples, views_per_texel=views, unseen=views < int(min_views),
+                   coverage=surface.to_texture(views.astype(np.int32), fill=np.int32(-1)), weight=weight,
+                   rejected=tuple(rejected), valid_fraction=tuple(valid_fraction), names=tuple(names),
+                   grazing_deg=float(grazing_deg), min_views=int(min_views), shadows=bool(shadows))
+
     @property
     def n_unseen(self) -> int:
         return int(np.sum(self.unseen))
@@ -151,14 +162,10 @@ def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | t
         valid_frac.append(float(obs.mean()) if obs.size else 0.0)
         del view, rad, ok_px
         bar.advance(1)
-    views = np.sum(weight > 0, axis=0).astype(np.int64)
-    unseen = views < int(min_views)
-    mask[:, :, unseen] = False
+    report = PhotoTexelReport.of(surface, weight, rejected, valid_frac, photos.names, grazing_deg=grazing_deg,
+                                 min_views=min_views, shadows=shadows)
+    mask[:, :, report.unseen] = False
     radiance = np.where(mask[..., None], radiance, np.float32(0))
-    coverage = surface.to_texture(views.astype(np.int32), fill=np.int32(-1))
     capture = stage.Capture(radiance=jnp.asarray(radiance), mask=jnp.asarray(mask), rig=photos.rig,
                             cameras=tuple(photos.cameras))
-    report = PhotoTexelReport(texels=P, views_per_texel=views, unseen=unseen, coverage=coverage, weight=weight,
-                              rejected=tuple(rejected), valid_fraction=tuple(valid_frac), names=tuple(photos.names),
-                              grazing_deg=float(grazing_deg), min_views=int(min_views), shadows=bool(shadows))
     return capture, surface, report
