@@ -41,6 +41,7 @@ COMMANDS = (
     ("fit", "fit reflectance maps to a capture folder; write a texture set + Mitsuba scene"),
     ("render", "relight a capture (image-based) or a fitted map set (model-based)"),
     ("convert", "capture folder <-> capture store (.zarr, chunked Zarr v3)"),
+    ("export", "export a fitted map set as a binary glTF 2.0 file (.glb)"),
     ("demo", "simulate, fit and relight the bundled textured head (built-in defaults)"),
     ("view", "write index.html, the results viewer, into a result folder"),
     ("reseal", "accept hand edits of a result folder (rewrite its manifest)"),
