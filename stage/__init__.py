@@ -100,6 +100,8 @@ from ._simulate import shading_directions as shading_directions
 from ._simulate import simulate as simulate
 from ._simulate import simulate_chunks as simulate_chunks
 from ._simulate import split_material as split_material
+from ._simulate_images import ImageChunk as ImageChunk
+from ._simulate_images import iter_images as iter_images
 from ._simulate_images import simulate_images as simulate_images
 from ._stream import DEFAULT_BLOCK as DEFAULT_BLOCK
 from ._stream import CaptureWriter as CaptureWriter

@@ -102,6 +102,9 @@ def add_parser(sub) -> None:
     p.add_argument("--read-noise", type=float, default=0.0, help="Gaussian read noise in electrons (with --noise)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     p.add_argument("--half", action="store_true", help="store radiance as half floats")
+    p.add_argument("--format", default="exr", choices=("exr", "png"), dest="image_format",
+                   help="photographs of --space image: exr (float radiance; default) | png (16-bit counts of the "
+                        "--noise sensor, counts = EXPOSURE x radiance clipped at 65535, as a camera delivers them)")
     p.add_argument("--space", default="texel", choices=("texel", "image"),
                    help="texel: a texel-space capture folder (default; what `relight fit` reads) | image: a "
                         "camera-space photo capture, one image per camera and light (what a real stage delivers; "
@@ -187,6 +190,13 @@ def _check_form(args, out: Path) -> bool:
     if store and args.space == "image":
         raise CLIError(f"--out {out}: a capture store ({STORE_SUFFIX}) holds texel-space captures; --space image "
                        f"writes a photo capture folder (give a name not ending in {STORE_SUFFIX})")
+    if args.image_format == "png" and args.space != "image":
+        raise CLIError("--format png: photographs only (--space image); a texel capture holds float radiance")
+    if args.image_format == "png" and args.noise.lower() == "none":
+        raise CLIError("--format png: 16-bit PNGs hold a sensor's counts; give the sensor with --noise EXPOSURE "
+                       "(photo-electrons per unit radiance; counts = EXPOSURE x radiance, clipped at 65535)")
+    if args.image_format == "png" and args.half:
+        raise CLIError("--half: applies to EXR photographs, not --format png")
     if args.block is not None and not store:
         raise CLIError(f"--block {args.block}: applies to a capture store only (--out ending in {STORE_SUFFIX}); "
                        "a capture folder is simulated in memory")
@@ -242,7 +252,8 @@ def run(args) -> int:
         with writing(out), bar(None, "simulate", args.quiet) as b, _flag_errors(args):
             if args.space == "image":
                 done = simulate_photo_capture(tmp, mesh, rig, cams, mesh_info=spec, rig_info=rig_desc,
-                                              half=args.half, sensor=sensor, seed=args.seed, progress=b,
+                                              half=args.half, sensor=sensor, seed=args.seed,
+                                              fmt=args.image_format, progress=b,
                                               metadata={"noise": _noise_meta(args, sensor, "pixel"),
                                                         "writer": "relight simulate --space image"})
             else:

@@ -52,11 +52,12 @@ from ._photo_check import check_photo_capture as check_photo_capture
 from ._photo_store import photos_to_texel_store as photos_to_texel_store
 from ._photo_texels import PhotoTexelReport as PhotoTexelReport
 from ._photo_texels import photos_to_texels as photos_to_texels
+from ._photo_writer import PhotoCaptureWriter as PhotoCaptureWriter
+from ._photo_writer import write_photo_capture as write_photo_capture
 from ._photos import PhotoCapture as PhotoCapture
 from ._photos import PhotoView as PhotoView
 from ._photos import is_photo_capture as is_photo_capture
 from ._photos import read_photo_capture as read_photo_capture
-from ._photos import write_photo_capture as write_photo_capture
 from ._png import read_png as read_png
 from ._png import write_png as write_png
 from ._previews import write_map_previews as write_map_previews
@@ -139,6 +140,7 @@ __all__ = [
     "MAX_PATH_CHARS",
     "MAX_IMAGE_PIXELS",
     "PhotoCapture",
+    "PhotoCaptureWriter",
     "PhotoTexelReport",
     "PhotoView",
     "SampleSubset",

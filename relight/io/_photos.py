@@ -33,14 +33,13 @@ import numpy as np
 
 import stage
 
-from ..image._tonemap import srgb_decode, srgb_encode, to_uint16
-from ._capture import _atomic_folder
+from ..image._tonemap import srgb_decode
 from ._errors import ImageFormatError, check_radiance, file_name, path_inside, path_template
-from ._exr import read_exr, write_exr
-from ._json import read_json, write_json
-from ._png import read_png, write_png
+from ._exr import read_exr
+from ._json import read_json
+from ._png import read_png
 
-__all__ = ["FORMAT", "PhotoCapture", "PhotoView", "is_photo_capture", "read_photo_capture", "write_photo_capture"]
+__all__ = ["FORMAT", "PhotoCapture", "PhotoView", "is_photo_capture", "read_photo_capture"]
 
 FORMAT = "relight-photos"
 VERSION = 1
@@ -378,71 +377,3 @@ def read_photo_capture(folder: str | os.PathLike, rig_units: str | None = None, 
     naming the file and the field.
     """
     return PhotoCapture(folder, rig_units, rig_up, rig_subset)
-
-
-def write_photo_capture(folder: str | os.PathLike, images: Sequence[np.ndarray], rig: stage.Rig,
-                        cameras: Sequence[stage.Camera], names: Sequence[str] | None = None, fmt: str = "exr",
-                        encoding: str = "linear", half: bool = False, exposure=None, gain=None,
-                        masks: Sequence[np.ndarray | None] | None = None, saturation: float | None = None,
-                        metadata: Mapping | None = None) -> Path:
-    """Write a photo capture folder: ``images[v]`` [L, H, W, C] float, the values
-    as stored (exposure x gain x radiance), per camera; ``fmt`` "exr" (float or
-    ``half``) or "png" (16-bit, values in [0, 1], sRGB- or gamma-encoded per
-    ``encoding``). ``exposure`` / ``gain``: per view, a scalar or [L]. The
-    folder must be new, empty or an earlier photo capture; the whole folder is
-    written under a temporary name and swapped into place when complete."""
-    folder = Path(folder)
-    if folder.exists() and (not folder.is_dir() or (any(folder.iterdir()) and not is_photo_capture(folder))):
-        raise FileExistsError(f"{folder}: exists and is neither empty nor a photo capture; refusing to replace it")
-    names = ([f"cam{i:03d}" for i in range(len(cameras))] if names is None else
-             [file_name(str(n), f"write_photo_capture: names[{i}]", error=ValueError) for i, n in enumerate(names)])
-    if not (len(images) == len(cameras) == len(names)):
-        raise ValueError(f"{folder}: {len(images)} image stacks, {len(cameras)} cameras, {len(names)} names")
-    if fmt not in ("exr", "png"):
-        raise ValueError(f"{folder}: fmt must be 'exr' or 'png', got {fmt!r}")
-    enc = _encoding(encoding, "encoding")
-    if folder.is_dir() and not any(folder.iterdir()):
-        folder.rmdir()  # an empty folder is replaced by the capture
-    with _atomic_folder(folder) as tmp:
-        _write_photos(tmp, images, rig, cameras, names, fmt, encoding, enc, half, exposure, gain, masks,
-                      saturation, metadata)
-    return folder
-
-
-def _write_photos(folder, images, rig, cameras, names, fmt, encoding, enc, half, exposure, gain, masks, saturation,
-                  metadata) -> None:
-    write_json(folder / "rig.json", {**stage.rig_to_dict(rig), "units": "mm"})
-    stage.save_cameras(folder / "cameras.json", cameras, names)
-    views = []
-    for v, (stack, name) in enumerate(zip(images, names, strict=True)):
-        stack = np.asarray(stack, np.float32)
-        if stack.ndim != 4 or stack.shape[0] != rig.num_lights:
-            raise ValueError(f"{folder}: images[{v}] must be [L={rig.num_lights}, H, W, C], got {stack.shape}")
-        (folder / name).mkdir(exist_ok=True)
-        entry = {"camera": name, "images": f"{name}/l{{light:03d}}.{fmt}"}
-        for l, img in enumerate(stack):
-            path = folder / name / f"l{l:03d}.{fmt}"
-            if fmt == "exr":
-                write_exr(path, img, half=half)
-            else:
-                x = np.clip(img.astype(np.float64), 0.0, 1.0)
-                if enc == "srgb":
-                    x = np.asarray(srgb_encode(x), np.float64)
-                elif not isinstance(enc, str):
-                    x = x ** (1.0 / enc)
-                write_png(path, to_uint16(x))
-        if masks is not None and masks[v] is not None:
-            write_png(folder / name / "mask.png", np.where(np.asarray(masks[v], bool), 255, 0).astype(np.uint8))
-            entry["mask"] = f"{name}/mask.png"
-        for key, val in (("exposure", exposure), ("gain", gain)):
-            if val is not None:
-                entry[key] = np.asarray(val[v], np.float64).tolist()
-        if fmt == "png" and gain is None and exposure is None:
-            entry["gain"] = 1.0  # the values written are radiance: said, so a reader need not warn
-
-        views.append(entry)
-    doc = {"format": FORMAT, "version": VERSION, "rig": "rig.json", "cameras": "cameras.json",
-           "encoding": encoding if fmt == "png" else "linear", "views": views, "metadata": dict(metadata or {})}
-    if saturation is not None:
-        doc["saturation"] = float(saturation)
-    write_json(folder / "capture.json", doc)

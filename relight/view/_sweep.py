@@ -227,6 +227,12 @@ def _capture_sweeps(folder: Path, env, frames, size, camera=None, exposure=None,
 
     if is_photo_capture(folder):
         photos = read_photo_capture(folder)
+        cam = photos.cameras[0]
+        values = photos.n_lights * cam.height * cam.width * int(np.asarray(photos.rig.intensity).shape[-1])
+        if values > MAX_CAPTURE_VALUES:
+            return [], (f"no rotation slider: camera {photos.names[0]}'s photographs hold {values:,} values, more "
+                        f"than the {MAX_CAPTURE_VALUES:,} a page's sweep reads whole (run `relight render {folder} "
+                        "--frames N` for a turntable)")
         view = next(photos.iter_views())
         return [photo_sweep(view.radiance, view.mask, photos.rig, env, frames,
                             label or f"photographs of {view.name}, image-based", exposure)], None
