@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import UNSEEN_FILL, read_maps, texel_surface
+from ..io import UNSEEN_FILL, fill_unseen, read_maps, texel_surface
 from ..materials import MODELS, MaterialMaps
 from ..results import atomic_write_bytes
 from ._gltf_textures import (
@@ -158,6 +158,10 @@ def _from_maps(maps: MaterialMaps, mesh, surface, seen) -> _Source:
                          "per texel")
     P = surface.num_samples
     seen = np.ones(P, bool) if seen is None else np.asarray(seen, bool).reshape(P)
+    if not seen.any():
+        raise ValueError("write_gltf: no sample is seen (seen is all False)")
+    if not seen.all():
+        maps = fill_unseen(maps, surface, seen)  # the map set's fill: the nearest seen sample's material
     values = {k: np.asarray(getattr(maps, k)) for k in ("rho_d", "rho_s", "alpha", "normal", "tangent", "mfp",
                                                           "model")}
     values["seen"] = seen
@@ -286,7 +290,8 @@ def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=N
         mesh: for a folder, another mesh for the set (a ``relight.io.mesh_spec`` dict or a ``stage.Mesh`` in
             mm: the recorded one moved); for MaterialMaps, the ``stage.Mesh`` they are on (required).
         surface: for MaterialMaps, their ``stage.texel_samples`` surface (or a subset of it), one per texel.
-        seen: for MaterialMaps, bool [P]: the samples a camera saw (None: all).
+        seen: for MaterialMaps, bool [P]: the samples a camera saw (None: all); the others are given the map
+            set's fill first (``relight.io.fill_unseen``: the nearest seen sample's material, the mesh's normal).
         coverage_alpha: put the coverage in the base colour's alpha with ``alphaMode`` MASK (texels no camera
             saw cut out); default False: they keep the set's fill and the coverage is only in extras.
 
