@@ -1,21 +1,25 @@
 """A light-stage delivery at realistic sizes, end to end through the command line: photographs -> texel store ->
 fit -> render, with the wall time and peak resident memory of every stage, and the decode rate of the same
-photographs with a plain OpenEXR loop as the baseline measured in the same run.
+photographs with a plain decoder loop (pypng for PNG, OpenEXR for EXR) as the baseline measured in the same run.
 
 Per size S (image side in pixels; the texel grid is S x S too): ``relight simulate --space image`` writes the
-delivery (the bundled head, the full Light Stage X, 3 cameras over 60 degrees, one float32 EXR per camera and
-light, Poisson + read noise through the sensor), then, each its own process:
+delivery (the bundled head, the full Light Stage X, 3 cameras over 60 degrees, one photograph per camera and
+light through the sensor: Poisson + read noise at 2000 photo-electrons per unit radiance; ``--format png``, the
+default: 16-bit PNGs of the counts, as a camera delivers them, clipped counts invalid; ``exr``: float32 EXRs of the
+radiance), then, each its own process:
 
-* ``decode``: the baseline, every photograph of the delivery read with ``OpenEXR.File`` in a loop (no
-  resampling, no writing): what reading the delivery costs at the decoder's speed;
+* ``decode``: the baseline, every photograph of the delivery read in a loop with a plain decoder (``png.Reader``
+  for PNG, ``OpenEXR.File`` for EXR; no resampling, no writing): what reading the delivery costs at the
+  decoder's speed;
 * ``convert``: ``relight convert PHOTOS S.zarr --mesh head --resolution S`` (``relight.io.photos_to_texel_store``:
   a light chunk of photographs at a time into the texel store);
 * ``fit``: ``relight fit S.zarr --model ggx`` (block by block from the store; compile included);
 * ``render``: ``relight render FIT --image-size S`` (the fitted maps under the bundled environment map).
 
 Throughput: pixel-observations (cameras x lights x S^2) per second in for decode and convert, fitted texels per
-second for the fit. The peak of each process is its own (``os.wait4``'s ``ru_maxrss``). The simulation is the
-data generator, not a stage: it holds every photograph in memory (3 x 346 x S^2 x 3 float32: 13 GiB at 1024).
+second for the fit. The peak of each process is its own (``os.wait4``'s ``ru_maxrss``). The simulation writes
+each light chunk of a camera as it is made (``stage.iter_images`` into ``relight.io.PhotoCaptureWriter``), so
+its memory too is a chunk, not the delivery (3 x 346 x S^2 x 3 float32: 13 GiB at 1024).
 
     python scripts/bench_delivery.py                      # 256 and 512
     python scripts/bench_delivery.py --sizes 256,512,1024 --keep /tmp/delivery
@@ -35,7 +39,7 @@ from pathlib import Path
 from _common import FIG, ROOT, machine, parser
 
 STAGES = ("simulate", "decode", "convert", "fit", "render")
-_DECODE = """
+_DECODE = {"exr": """
 import sys, time, json, OpenEXR
 files = sys.argv[1:]
 t = time.perf_counter(); n = 0
@@ -44,7 +48,15 @@ for f in files:
         for c in e.channels().values():
             n += c.pixels.size
 print(json.dumps({"seconds": time.perf_counter() - t, "values": n}))
-"""
+""", "png": """
+import sys, time, json, png
+files = sys.argv[1:]
+t = time.perf_counter(); n = 0
+for f in files:
+    w, h, rows, info = png.Reader(filename=f).read_flat()
+    n += len(rows)
+print(json.dumps({"seconds": time.perf_counter() - t, "values": n}))
+"""}
 
 
 def _run(cmd: list[str], log: Path) -> tuple[float, float, str]:
@@ -75,7 +87,7 @@ def _cameras(path: Path, size: int) -> None:
     stage.save_cameras(path, cams, names=["left", "front", "right"])
 
 
-def bench_size(size: int, work: Path, lights: int) -> dict:
+def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
     """Every stage at one size, in ``work``; the row of the table."""
     relight = [sys.executable, "-c", "import sys; from relight.cli import main; sys.exit(main(sys.argv[1:]))"]
     cams = work / "cameras.json"
@@ -85,10 +97,10 @@ def bench_size(size: int, work: Path, lights: int) -> dict:
     row = {"size": size, "texels": size * size}
     stages = {}
     stages["simulate"] = _run([*relight, "simulate", "--space", "image", *rig, "--camera", str(cams), "--noise",
-                               "2000", "--read-noise", "2", "--out", str(photos), "--no-index", "-q"],
-                              work / "simulate.log")
-    files = sorted(str(p) for p in photos.rglob("*.exr") if "preview" not in p.name)
-    stages["decode"] = _run([sys.executable, "-c", _DECODE, *files], work / "decode.log")
+                               "2000", "--read-noise", "2", "--format", fmt, "--out", str(photos), "--no-index",
+                               "-q"], work / "simulate.log")
+    files = sorted(str(p) for p in photos.rglob(f"l*.{fmt}"))
+    stages["decode"] = _run([sys.executable, "-c", _DECODE[fmt], *files], work / "decode.log")
     stages["convert"] = _run([*relight, "convert", str(photos), str(store), "--mesh", "head", "--resolution",
                               str(size), "--no-index", "-q"], work / "convert.log")
     stages["fit"] = _run([*relight, "fit", str(store), "--model", "ggx", "--out", str(fit), "--no-index", "-q"],
@@ -100,7 +112,9 @@ def bench_size(size: int, work: Path, lights: int) -> dict:
     decoded = json.loads(stages["decode"][2])
     row.update({f"{k}_s": round(v[0], 1) for k, v in stages.items()})
     row.update({f"{k}_peak_mib": round(v[1]) for k, v in stages.items()})
-    row.update(observations=obs, photo_files=len(files), decode_values=int(decoded["values"]),
+    clipped = json.loads((photos / "settings.json").read_text())["resolved"]["clipped_fraction"]
+    row.update(format=fmt, observations=obs, photo_files=len(files), decode_values=int(decoded["values"]),
+               clipped_fraction=clipped,
                seen_texels=int(report["seen_samples"]),
                decode_obs_per_s=obs / stages["decode"][0], convert_obs_per_s=obs / stages["convert"][0],
                fit_texels_per_s=report["seen_samples"] / stages["fit"][0])
@@ -109,23 +123,27 @@ def bench_size(size: int, work: Path, lights: int) -> dict:
 
 def _table(rows: list[dict], cmd: str) -> str:
     lines = [f"Machine: {machine()}. Command: `{cmd}`.", "",
-             "Wall time (s) and peak resident memory (MiB) of each stage, each its own process. Decode: the "
-             "photographs read by a plain OpenEXR loop (the baseline); convert: `relight convert PHOTOS S.zarr "
-             "--mesh head` (photographs to the texel store, a light chunk at a time); fit: `relight fit S.zarr "
-             "--model ggx` over the texels a camera sees (compile included); render: `relight render FIT`.", "",
+             "Wall time (s) and peak resident memory (MiB) of each stage, each its own process. Simulate: "
+             f"`relight simulate --space image --format {rows[0]['format']}` (the delivery, written a light chunk "
+             "at a time); decode: the photographs read by a plain decoder loop (the baseline); convert: `relight "
+             "convert PHOTOS S.zarr --mesh head` (photographs to the texel store, a light chunk at a time); fit: "
+             "`relight fit S.zarr --model ggx` over the texels a camera sees (compile included); render: "
+             "`relight render FIT`.", "",
              "| size (px = texels) | simulate s | decode s | convert s (x decode) | fit s | render s | "
-             "peak MiB: convert / fit / render | convert Mobs/s (decode) | fit texels/s | seen texels |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "peak MiB: simulate / convert / fit / render | convert Mobs/s (decode) | fit texels/s | seen texels | "
+             "clipped |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
             f"| {r['size']}^2 | {r['simulate_s']} | {r['decode_s']} | {r['convert_s']} "
             f"({r['convert_s'] / max(r['decode_s'], 1e-9):.1f}x) | {r['fit_s']} | {r['render_s']} | "
-            f"{r['convert_peak_mib']} / {r['fit_peak_mib']} / {r['render_peak_mib']} | "
+            f"{r['simulate_peak_mib']} / {r['convert_peak_mib']} / {r['fit_peak_mib']} / {r['render_peak_mib']} | "
             f"{r['convert_obs_per_s'] / 1e6:.1f} ({r['decode_obs_per_s'] / 1e6:.1f}) | "
-            f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} |")
+            f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} | {100 * r['clipped_fraction']:.3f}% |")
     if len(rows) > 1:
         a, b = rows[0], rows[-1]
-        lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: convert "
+        lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: simulate "
+                      f"{b['simulate_peak_mib'] / a['simulate_peak_mib']:.2f}x, convert "
                       f"{b['convert_peak_mib'] / a['convert_peak_mib']:.2f}x, fit "
                       f"{b['fit_peak_mib'] / a['fit_peak_mib']:.2f}x, render "
                       f"{b['render_peak_mib'] / a['render_peak_mib']:.2f}x (the capture grew "
@@ -133,10 +151,19 @@ def _table(rows: list[dict], cmd: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _write(path: Path, text: str) -> None:
+    """``text`` into ``path`` whole or not at all (a sibling temporary file, then one rename)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def main(argv=None) -> None:
     ap = parser(__doc__)
     ap.add_argument("--sizes", default="256,512", help="image sides (= texel grid sides), comma-separated")
     ap.add_argument("--lights", type=int, default=346, help="346: the Light Stage X; else a dome:N rig")
+    ap.add_argument("--format", default="png", choices=("png", "exr"), dest="fmt",
+                    help="the photographs: 16-bit PNG counts (default) or float32 EXR radiance")
     ap.add_argument("--keep", type=Path, default=None, help="keep each size's files under this folder")
     ap.add_argument("--out", type=Path, default=FIG, help="where delivery.md / delivery.json go")
     a = ap.parse_args(argv)
@@ -146,16 +173,16 @@ def main(argv=None) -> None:
         work = Path(tempfile.mkdtemp(prefix=f"delivery{size}_")) if a.keep is None else a.keep / str(size)
         work.mkdir(parents=True, exist_ok=True)
         try:
-            rows.append(bench_size(size, work, a.lights))
+            rows.append(bench_size(size, work, a.lights, a.fmt))
             print(json.dumps(rows[-1]), flush=True)
         finally:
             if a.keep is None:
                 shutil.rmtree(work, ignore_errors=True)
     cmd = "python scripts/bench_delivery.py" + ("" if a.sizes == "256,512" else f" --sizes {a.sizes}") + (
-        "" if a.lights == 346 else f" --lights {a.lights}")
+        "" if a.lights == 346 else f" --lights {a.lights}") + ("" if a.fmt == "png" else f" --format {a.fmt}")
     a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / "delivery.json").write_text(json.dumps({"machine": machine(), "command": cmd, "rows": rows}, indent=1))
-    (a.out / "delivery.md").write_text(_table(rows, cmd))
+    _write(a.out / "delivery.json", json.dumps({"machine": machine(), "command": cmd, "rows": rows}, indent=1))
+    _write(a.out / "delivery.md", _table(rows, cmd))
     print(_table(rows, cmd))
 
 

@@ -36,6 +36,11 @@ def add_parser(sub) -> None:
     p.add_argument("dst", help="the store to write (.zarr) from a folder or photos, or the folder to write from a "
                                "store")
     add_photo_texel_flags(p, "photo captures")
+    p.add_argument("--resume", action="store_true",
+                   help="photo captures: keep what a killed conversion of the same photographs into DST with the "
+                        "same settings finished (DST's partial store, .DST.partial beside it, checkpointed after "
+                        "each light chunk of each camera); refused if the photographs, the mesh or a setting "
+                        "changed. Without it an earlier partial store is cleared")
     add_index_flag(p)
     finish_parser(p, run)
 
@@ -57,6 +62,8 @@ def run(args) -> int:
     photos = (src / "capture.json").is_file() and is_photo_capture(src)
     if not photos:
         refuse_photo_flags(args, f"photo captures only; {src} is not one")
+        if args.resume:
+            raise CLIError(f"--resume: photo captures only; {src} is converted in one go")
     if photos:
         if dst.suffix != _SUFFIX:
             raise CLIError(f"{dst}: a photo capture converts to a texel capture store, whose name must end in "
@@ -99,7 +106,7 @@ def run(args) -> int:
 
 def _photos_to_store(args, src: Path, dst: Path) -> None:
     """``relight convert PHOTOS DST.zarr --mesh MESH``: :func:`relight.io.photos_to_texel_store`."""
-    from ..io import mesh_size_warning, photos_to_texel_store, read_photo_capture
+    from ..io import PartialStoreMismatch, mesh_size_warning, photos_to_texel_store, read_photo_capture
 
     mesh = photo_mesh_from_args(args, src)
     photos = read_photo_capture(src, rig_units=args.rig_units, rig_up=args.rig_up)
@@ -108,9 +115,13 @@ def _photos_to_store(args, src: Path, dst: Path) -> None:
         import sys
 
         print(f"relight convert: warning: {warning}", file=sys.stderr)
-    with bar(None, "convert", args.quiet) as b:
-        _, report = photos_to_texel_store(photos, mesh["mesh"], args.resolution, dst, surface_info=mesh["mesh_info"],
-                                          grazing_deg=args.grazing_deg, min_views=args.min_views, progress=b)
+    try:
+        with bar(None, "convert", args.quiet) as b:
+            _, report = photos_to_texel_store(photos, mesh["mesh"], args.resolution, dst,
+                                              surface_info=mesh["mesh_info"], grazing_deg=args.grazing_deg,
+                                              min_views=args.min_views, resume=args.resume, progress=b)
+    except PartialStoreMismatch as err:
+        raise CLIError(f"--resume: {err}") from None
     if summary(args) and report.n_unseen:
         print(f"{report.n_unseen} of the {report.texels} texels are unseen (no camera sees them): they hold no "
               "valid observation")

@@ -74,6 +74,7 @@ from ._store import StoreChangedError as StoreChangedError
 from ._store import default_chunks as default_chunks
 from ._store import is_capture_store as is_capture_store
 from ._store import write_capture_store as write_capture_store
+from ._store_partial import PartialStoreMismatch as PartialStoreMismatch
 from ._store_reader import CaptureStore as CaptureStore
 from ._store_reader import capture_folder_to_store as capture_folder_to_store
 from ._store_reader import open_capture_store as open_capture_store
@@ -139,6 +140,7 @@ __all__ = [
     "MAX_RADIANCE",
     "MAX_PATH_CHARS",
     "MAX_IMAGE_PIXELS",
+    "PartialStoreMismatch",
     "PhotoCapture",
     "PhotoCaptureWriter",
     "PhotoTexelReport",

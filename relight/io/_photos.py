@@ -177,6 +177,7 @@ class PhotoCapture:
         self.n_lights = self.rig.num_lights
         # the cameras
         cam_path = _inside(self.folder, info.get("cameras", "cameras.json"), f"{where}: field 'cameras'")
+        self.cameras_file = cam_path
         doc = read_json(cam_path, "camera file")
         entries = doc.get("cameras") if isinstance(doc, Mapping) else doc
         if not isinstance(entries, list) or not entries:
@@ -297,6 +298,10 @@ class PhotoCapture:
                       "sensor counts, state 'gain' (counts per unit radiance / 65535 for 16-bit PNGs; "
                       "docs/capture_layout.md, 'From sensor counts to radiance'), or \"gain\": 1 to confirm "
                       "the values are radiance", UserWarning, stacklevel=3)
+
+    def mask_file(self, view: int) -> Path | None:
+        """The mask file of ``view`` (None: no mask, every pixel is the subject's)."""
+        return self._views[view]["mask"]
 
     def read_mask(self, view: int) -> np.ndarray:
         """bool [H, W]: the view's mask (> half of full scale in its first

@@ -64,6 +64,7 @@ from ._capture import _rig_light_count
 from ._errors import ImageFormatError, check_radiance, path_inside
 from ._json import jsonable, write_json
 from ._store_chunks import DIGEST, ChecksummedStore
+from ._store_partial import JOURNAL_FILE, PARTIAL_FILE, append_checkpoint, partial_folder, start_partial
 
 __all__ = ["CaptureStoreError", "CaptureStoreWriter", "StoreChangedError", "default_chunks", "is_capture_store",
            "write_capture_store"]
@@ -204,16 +205,25 @@ class CaptureStoreWriter:
         has_valid: whether the mask is meaningful (a capture folder without
             a ``valid`` channel stores an all-True mask and says so).
         progress: ``stage.Progress``, phase "write store", counting chunks.
+        partial: make the writer resumable: a JSON-able description of what the store is of (its inputs and
+            settings; the shape, chunks, rig, cameras and metadata are added). The store is then built in
+            ``.NAME.partial`` beside ``path`` (``relight.io._store_partial``) under an output lock on ``path``,
+            :meth:`checkpoint` records progress, and leaving the ``with`` block by an exception keeps the partial
+            store for a later writer (:meth:`abort` deletes it).
+        resume: with ``partial``: keep the chunks that the verified checkpoints of an earlier writer of the same
+            store name (``checkpoints`` lists their entries); without it an earlier partial store is cleared.
 
     Raises ValueError naming the argument on bad shapes or types, FileNotFoundError
     when the parent folder is missing, FileExistsError when ``path`` exists and
-    is not a store.
+    is not a store; with ``resume``, ``PartialStoreMismatch`` (a ValueError) when the partial store there is of
+    other inputs or settings, and ``relight.results.FolderLockedError`` when another writer holds ``path``.
     """
 
     def __init__(self, path: str | os.PathLike, shape: Sequence[int], dtype=np.float32, rig=None, cameras=None,
                  metadata: Mapping | None = None, chunks: Sequence[int] | None = None, *,
                  sample_shape: Sequence[int] | None = None, channels: Sequence[str] | None = None,
-                 has_valid: bool = True, progress: stage.Progress | None = None):
+                 has_valid: bool = True, progress: stage.Progress | None = None, partial: Mapping | None = None,
+                 resume: bool = False):
         import zarr
 
         self.path = Path(path)
@@ -258,18 +268,39 @@ class CaptureStoreWriter:
         self._pending: dict[tuple[int, int, int], list] = {}
         self._generation = secrets.token_hex(16)
         self._closed = False
+        self.checkpoints: list[dict] = []
+        self._journaled: set[tuple[int, int, int]] = set()
         parent = _check_target(self.path)
-        self._tmp = parent / f".{self.path.name}.{secrets.token_hex(6)}.tmp"
-        self._tmp.mkdir()  # permissions as a plain mkdir gives them (mkdtemp's are private)
-        # A writer dropped without close() or abort() leaves no temporary folder behind either.
-        self._cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
+        self._partial, self._lock, records = partial is not None, None, []
+        if self._partial:
+            from ..results import FolderLock
+
+            self._lock = FolderLock(self.path, "a capture store writer").acquire()
+            self._tmp = partial_folder(self.path)
+            try:
+                records = start_partial(self._tmp, self._identity(partial), bool(resume))
+            except BaseException:
+                self._lock.release()
+                raise
+            self._cleanup = weakref.finalize(self, self._lock.release)
+        else:
+            self._tmp = parent / f".{self.path.name}.{secrets.token_hex(6)}.tmp"
+            self._tmp.mkdir()  # permissions as a plain mkdir gives them (mkdtemp's are private)
+            # A writer dropped without close() or abort() leaves no temporary folder behind either.
+            self._cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
+        # write_empty_chunks: every chunk is on disk, so a store missing a chunk file is damaged, not zeros.
+        cfg = {"write_empty_chunks": True}
         try:
             self._store = ChecksummedStore(self._tmp, arrays=tuple(_ARRAYS.values()))
-            root = zarr.open_group(store=self._store, mode="w", zarr_format=3,
+            if records:
+                self._reopen(zarr.open_group(store=self._store, mode="r+", zarr_format=3), cfg, records)
+                self._bar = stage.Phase(progress, "write store", self._total)
+                self._bar.advance(len(self._done))
+                return
+            # (mode "a" for a partial store: "w" would delete its partial.json; the folder is fresh either way.)
+            root = zarr.open_group(store=self._store, mode="a" if self._partial else "w", zarr_format=3,
                                    attributes={"relight": {"format": FORMAT, "version": VERSION,
                                                            "generation": self._generation}})
-            # write_empty_chunks: every chunk is on disk, so a store missing a chunk file is damaged, not zeros.
-            cfg = {"write_empty_chunks": True}
             self._radiance = root.create_array(
                 _ARRAYS["radiance"], shape=shape, chunks=self.chunks, dtype=self.dtype.name,
                 compressors=_codecs("radiance"), fill_value=0, config=cfg,
@@ -279,9 +310,27 @@ class CaptureStoreWriter:
                 compressors=_codecs("mask"), fill_value=False, config=cfg,
                 dimension_names=("view", "light", "sample"))
         except BaseException:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self.abort()
             raise
         self._bar = stage.Phase(progress, "write store", self._total)
+
+    def _identity(self, partial: Mapping) -> dict:
+        V, L, P, C = self.shape
+        return {"of": jsonable(dict(partial)), "shape": [V, L, P, C], "dtype": self.dtype.name,
+                "chunks": list(self.chunks), "sample_shape": list(self.sample_shape), "channels": self.channels,
+                "has_valid": self.has_valid, "rig": self._rig, "cameras": self._cameras, "metadata": self._metadata}
+
+    def _reopen(self, root, cfg, records: list[dict]) -> None:
+        """Open the arrays of a partial store and take over its verified checkpoints."""
+        self._generation = str(root.attrs["relight"]["generation"])
+        self._radiance = root[_ARRAYS["radiance"]].with_config(cfg)
+        self._mask = root[_ARRAYS["mask"]].with_config(cfg)
+        for rec in records:
+            keys = {tuple(int(i) for i in k) for k in rec["chunks"]}
+            self._done |= keys
+            self._journaled |= keys
+            self._store.digests.update(rec["digests"])
+            self.checkpoints.append(rec["entry"])
 
     def __enter__(self) -> CaptureStoreWriter:
         return self
@@ -289,8 +338,30 @@ class CaptureStoreWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
+        elif self._partial:  # kept for a writer that resumes
+            self._closed = True
+            self._pending.clear()
+            self._cleanup()
         else:
             self.abort()
+
+    def written(self, view: int, light_slice: slice) -> bool:
+        """Whether every chunk of ``view`` under the lights ``light_slice`` (all samples) is written."""
+        cv, cl, cp, _ = self.chunks
+        l0, l1 = _span(light_slice, self.shape[1], "light_slice")
+        return all((view // cv, lk, pk) in self._done for lk in range(l0 // cl, (l1 - 1) // cl + 1)
+                   for pk in range(self._grid[2]))
+
+    def checkpoint(self, entry: Mapping) -> None:
+        """Record progress (resumable writers only): the chunks complete since the last checkpoint, their digests
+        and ``entry`` (JSON-able: what the caller needs to skip that work when it resumes), flushed to disk."""
+        if not self._partial:
+            raise ValueError(f"{self.path}: checkpoint needs a resumable writer (partial=...)")
+        new = self._done - self._journaled
+        files = {f: self._store.digests[f] for v, l, p in new
+                 for f in (f"{_ARRAYS['radiance']}/c/{v}/{l}/{p}/0", f"{_ARRAYS['mask']}/c/{v}/{l}/{p}")}
+        append_checkpoint(self._tmp, sorted(new), files, jsonable(dict(entry)))
+        self._journaled |= new
 
     def _chunk_box(self, key):
         return tuple(slice(k * c, min((k + 1) * c, s)) for k, c, s in zip(key, self.chunks, self.shape, strict=False))
@@ -366,10 +437,12 @@ class CaptureStoreWriter:
         self._metadata.update(extra)
 
     def abort(self) -> None:
-        """Delete the temporary store; the target is left as it was."""
+        """Delete the temporary (or partial) store; the target is left as it was."""
         self._closed = True
         self._pending.clear()
         self._cleanup()
+        if self._partial:
+            shutil.rmtree(self._tmp, ignore_errors=True)
 
     def close(self) -> Path:
         """Commit: every chunk written, then rig.json, cameras.json, the manifest
@@ -400,12 +473,17 @@ class CaptureStoreWriter:
                         "chunk_digests": {"digest": DIGEST, **digests},
                         "metadata": self._metadata}
             write_json(self._tmp / MARKER, manifest, indent=1)
+            for name in (PARTIAL_FILE, JOURNAL_FILE):
+                (self._tmp / name).unlink(missing_ok=True)
             _swap_in(self._tmp, self.path)
         except BaseException:
             self.abort()
             raise
         self._closed = True
-        self._cleanup.detach()
+        if self._partial:
+            self._cleanup()  # the lock
+        else:
+            self._cleanup.detach()
         return self.path
 
 

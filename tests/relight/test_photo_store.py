@@ -115,3 +115,60 @@ def test_cli_convert_then_fit(scene, tmp_path, capsys):  # noqa: F811
     seen = photos_to_texels(read_photo_capture(masked), scene[0], 16)[2].coverage > 0  # texels a camera sees
     assert seen.sum() == a["seen_samples"]
     np.testing.assert_allclose(A[seen], B[seen], rtol=1e-4, atol=1e-6)
+
+
+def test_a_killed_conversion_resumes_where_it_stopped(scene, tmp_path, monkeypatch):  # noqa: F811
+    """A conversion stopped after 7 of its 15 light chunks (an exception from the progress callback, standing in
+    for a kill: nothing after it runs) leaves no store but a partial one; run again with resume=True it reads
+    only the 8 chunks of photographs the first run did not finish and gives the store of one uninterrupted run,
+    chunk for chunk, and its report. Other settings refuse to resume; without resume the partial store is
+    cleared and everything is read again."""
+    from relight.io import PartialStoreMismatch, PhotoCapture
+
+    mesh, _, _, _, masked, _ = scene
+    photos = read_photo_capture(masked)
+    kw = {"surface_info": mesh_spec(None), "light_chunk": 40, "min_views": 2}  # 5 chunks a camera, 15 in all
+    _, ref = photos_to_texel_store(photos, mesh, RES, tmp_path / "whole.zarr", **kw)
+    path = tmp_path / "texels.zarr"
+
+    class Killed(Exception):
+        pass
+
+    def kill_after(n):
+        calls = []
+
+        def progress(phase, done, total):
+            if phase == "photos to texels" and done > 0:
+                calls.append(done)
+                if len(calls) == n:
+                    raise Killed
+        return progress
+
+    with pytest.raises(Killed):
+        photos_to_texel_store(photos, mesh, RES, path, progress=kill_after(7), **kw)
+    partial = tmp_path / ".texels.zarr.partial"
+    assert not path.exists() and len((partial / "journal.jsonl").read_text().splitlines()) == 7
+
+    reads = []
+    real = PhotoCapture.read_view
+
+    def counted(self, v, lights=None):
+        reads.append(v)
+        return real(self, v, lights=lights)
+
+    monkeypatch.setattr(PhotoCapture, "read_view", counted)
+    with pytest.raises(PartialStoreMismatch, match="another conversion"):
+        photos_to_texel_store(photos, mesh, RES, path, resume=True, **{**kw, "min_views": 1})
+    reads.clear()
+    _, report = photos_to_texel_store(photos, mesh, RES, path, resume=True, **kw)
+    assert not partial.exists() and len(reads) == 1 + 15 - 7  # the channel count's one photograph, then 8 chunks
+    a, b = open_capture_store(path), open_capture_store(tmp_path / "whole.zarr")
+    idx = np.arange(RES * RES)
+    for x, y in zip(a.gather_samples(idx), b.gather_samples(idx), strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert a.metadata == b.metadata and report.to_dict() == ref.to_dict()
+    with pytest.raises(Killed):
+        photos_to_texel_store(photos, mesh, RES, path, progress=kill_after(2), **kw)
+    reads.clear()
+    photos_to_texel_store(photos, mesh, RES, path, **kw)
+    assert len(reads) == 1 + 15 and open_capture_store(path).metadata == b.metadata

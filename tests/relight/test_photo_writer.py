@@ -67,8 +67,9 @@ def test_png_photographs_are_the_sensors_counts(tmp_path, capsys):
     light, and the settings say what fraction was clipped."""
     base = ["simulate", "--space", "image", "--rig", "dome:42", "--image-size", str(SIZE), "--no-index", "--quiet"]
     exposure = 200.0
-    assert main([*base, "--noise", str(exposure), "--read-noise", "2", "--out", str(tmp_path / "exr")]) == 0
-    assert main([*base, "--noise", str(exposure), "--read-noise", "2", "--format", "png", "--out", str(tmp_path / "png")]) == 0
+    sensor = ["--noise", str(exposure), "--read-noise", "2"]
+    assert main([*base, *sensor, "--out", str(tmp_path / "exr")]) == 0
+    assert main([*base, *sensor, "--format", "png", "--out", str(tmp_path / "png")]) == 0
     exr, png = (read_photo_capture(tmp_path / n).read_view(0) for n in ("exr", "png"))
     assert sorted(p.suffix for p in (tmp_path / "png" / "cam000").iterdir()) == [".png"] * 43  # 42 + the mask
     np.testing.assert_array_equal(png.mask, exr.mask)
