@@ -1,6 +1,7 @@
 """What several scripts share: the machine description, a JSON child-process runner, the argparse and chart
-boilerplate, and the synthetic scenes of the fit benchmarks (sampled sphere surfaces, a UV-sphere mesh, a
-simulated OLAT capture, the per-sample errors of a fit).
+boilerplate, the synthetic scenes of the fit benchmarks (sampled sphere surfaces, a UV-sphere mesh, a
+simulated OLAT capture, the per-sample errors of a fit) and the inputs of the speed benchmarks (the head
+under the Light Stage X, random direction pairs, the GGX conductor, a random OLAT stack).
 
 Scripts run as ``python scripts/x.py`` from the repository root and import this module as ``_common``: Python
 puts the script's own folder first on ``sys.path``. Nothing here is library logic; it only composes the public
@@ -207,6 +208,23 @@ def errors(f: relight.Fit, rho, alpha, normal):
     return e_rho, e_alpha, e_n
 
 
+def fit_scene(texels: int, noise: float = 0.01):
+    """The scene of scripts/bench_fit.py (built inline there): ``texels`` samples of a 50 mm sphere's
+    camera-facing part, their shading normals tilted 5 degrees, under the Light Stage X seen from
+    ``front_camera()``, with random true parameters (``truth``) and radiance x (1 + noise N(0, 1)).
+
+    Returns:
+        (capture, geometric surface (the fit's start frame), true surface, (rho_d, F0, alpha) truth).
+    """
+    import stage
+
+    geo = sphere_surface(texels, seed=0)
+    true_surf = tilt(geo, 5.0, seed=1)
+    rho, f0, alpha = truth(texels, seed=3)
+    cap = capture_of(true_surf, stage.light_stage_x(), front_camera(), rho, f0, alpha, noise, seed=4)
+    return cap, geo, true_surf, (rho, f0, alpha)
+
+
 def uv_sphere(radius=50.0, n_lat=48, n_lon=96, center=(0.0, 0.0, 0.0)):
     """``stage.uv_sphere``, imported on use (this module loads no JAX at import)."""
     import stage
@@ -271,3 +289,68 @@ def load_surface(path: Path) -> stage.Surface:
 
     z = np.load(path)
     return stage.Surface(**{k: jnp.asarray(z[k]) for k in _SURFACE}, resolution=tuple(int(r) for r in z["resolution"]))
+
+
+# --------------------------------------------------------------------------- inputs of the speed benchmarks
+
+# The conductor of the BRDF speed benchmarks (scripts/bench_brdf.py, bench_device.py): per-channel eta and k.
+ETA = [0.2, 0.9, 1.1]
+K = [3.9, 2.4, 2.2]
+
+
+def ggx_conductor(alpha: float):
+    """``brdf.Microfacet(GGX(alpha), ConductorFresnel(ETA, K), "smith")`` in float32, one model for every pair."""
+    import jax.numpy as jnp
+
+    import brdf
+
+    return brdf.Microfacet(brdf.GGX(jnp.float32(alpha)),
+                           brdf.ConductorFresnel(jnp.asarray([ETA], jnp.float32), jnp.asarray([K], jnp.float32)),
+                           "smith")
+
+
+def random_pairs(n: int, seed: int = 0):
+    """n pairs of float32 unit vectors over the upper hemisphere, [n, 3] each (NumPy)."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+
+    def dirs():
+        z = rng.random(n)
+        phi = 2 * np.pi * rng.random(n)
+        r = np.sqrt(1 - z * z)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1).astype(np.float32)
+
+    return dirs(), dirs()
+
+
+def random_olat_stack(key, lights: int, samples: int, channels: int, dtype):
+    """A light-major OLAT stack [L, P, C] of U(0, 1) values made in JAX on the default device (no host copy)."""
+    import jax
+
+    # One light at a time inside lax.map: peak memory is the stack itself,
+    # not the stack plus the random bits of all of it.
+    keys = jax.random.split(key, lights)
+    gen = jax.jit(lambda ks: jax.lax.map(lambda k: jax.random.uniform(k, (samples, channels), dtype), ks))
+    return gen(keys).block_until_ready()
+
+
+def uniform_lambert_ggx(P: int):
+    """``brdf.lambert_ggx`` with rho_d 0.5, F0 0.028, alpha 0.35 for each of P samples (float32)."""
+    import jax.numpy as jnp
+
+    import brdf
+
+    f = lambda v, c: jnp.full((P, c), v, jnp.float32)  # noqa: E731
+    return brdf.lambert_ggx(f(0.5, 3), f(0.028, 1), f(0.35, 1))
+
+
+def head_scene(resolution: int):
+    """(mesh, surface, rig, camera) of the simulator benchmarks: the bundled head scan's texels on a
+    ``resolution``^2 grid, the Light Stage X, a 512 x 512 camera 1.3 m in front (11 degrees wide)."""
+    import stage
+
+    mesh = stage.load_head()
+    surface = stage.texel_samples(mesh, resolution)
+    camera = stage.look_at((0.0, 0.0, 1300.0), fov_deg=11.0, width=512, height=512)
+    return mesh, surface, stage.light_stage_x(), camera

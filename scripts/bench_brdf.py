@@ -31,25 +31,9 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import parser
+from _common import ETA, K, ggx_conductor, parser, random_pairs
 
 import brdf
-
-ETA = [0.2, 0.9, 1.1]
-K = [3.9, 2.4, 2.2]
-
-
-def random_pairs(n: int, seed: int = 0):
-    """n pairs of float32 unit vectors over the upper hemisphere, [n, 3] each."""
-    rng = np.random.default_rng(seed)
-
-    def dirs():
-        z = rng.random(n)
-        phi = 2 * np.pi * rng.random(n)
-        r = np.sqrt(1 - z * z)
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1).astype(np.float32)
-
-    return dirs(), dirs()
 
 
 def fusion_count(compiled) -> int:
@@ -58,11 +42,7 @@ def fusion_count(compiled) -> int:
 
 def ours_variants(alpha: float, n: int):
     """name -> function of (wi, wo). All evaluate the same model."""
-    model = brdf.Microfacet(
-        brdf.GGX(jnp.float32(alpha)),
-        brdf.ConductorFresnel(jnp.asarray([ETA], jnp.float32), jnp.asarray([K], jnp.float32)),
-        "smith",
-    )
+    model = ggx_conductor(alpha)
     out = {}
     out["jax (public API, jit)"] = lambda wi, wo: model(wi, wo)
 

@@ -27,17 +27,9 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import parser
+from _common import parser, random_olat_stack
 
 from relight.render import relight_olat, relight_olat_sweep
-
-
-def _make_stack(key, lights: int, samples: int, channels: int, dtype) -> jax.Array:
-    # One light at a time inside lax.map: peak memory is the stack itself,
-    # not the stack plus the random bits of all of it.
-    keys = jax.random.split(key, lights)
-    gen = jax.jit(lambda ks: jax.lax.map(lambda k: jax.random.uniform(k, (samples, channels), dtype), ks))
-    return gen(keys).block_until_ready()
 
 
 def _time(fn) -> float:
@@ -47,7 +39,7 @@ def _time(fn) -> float:
 
 
 def bench(lights: int, samples: int, channels: int, dtype, repeats: int, sweep: int) -> dict:
-    stack = _make_stack(jax.random.PRNGKey(0), lights, samples, channels, dtype)
+    stack = random_olat_stack(jax.random.PRNGKey(0), lights, samples, channels, dtype)
     weights = jax.random.uniform(jax.random.PRNGKey(1), (lights, channels), jnp.float32)
     nbytes = stack.size * stack.dtype.itemsize
     host = np.asarray(stack)  # zero-copy view of the same buffer (CPU backend)

@@ -20,8 +20,8 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import head_scene, uniform_lambert_ggx
 
-import brdf
 import stage
 
 
@@ -35,11 +35,6 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _material(P):
-    f = lambda v, c: jnp.full((P, c), v, jnp.float32)  # noqa: E731
-    return brdf.lambert_ggx(f(0.5, 3), f(0.028, 1), f(0.35, 1))
-
-
 def bench_brdf(n: int, repeats: int) -> float:
     """Raw lambert_ggx evaluations per second on n (wi, wo) pairs, jitted."""
     rng = np.random.default_rng(0)
@@ -50,7 +45,7 @@ def bench_brdf(n: int, repeats: int) -> float:
         return jnp.asarray(w / np.linalg.norm(w, axis=1, keepdims=True), jnp.float32)
 
     wi, wo = hemisphere(n), hemisphere(n)
-    mat = _material(n)
+    mat = uniform_lambert_ggx(n)
     f = jax.jit(lambda m, a, b: m(a, b))
     f(mat, wi, wo).block_until_ready()
     t = time.perf_counter()
@@ -68,10 +63,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
-    mesh = stage.load_head()
-    surf = stage.texel_samples(mesh, args.resolution)
-    rig = stage.light_stage_x()
-    cam = stage.look_at((0.0, 0.0, 1300.0), fov_deg=11.0, width=512, height=512)
+    mesh, surf, rig, cam = head_scene(args.resolution)
     P, L = surf.num_samples, rig.num_lights
     print(f"devices: {jax.devices()}  samples: {P}  lights: {L}  geometry: {time.perf_counter() - t0:.1f} s")
 
@@ -83,7 +75,7 @@ def main(argv=None):
           f"packed light mask {lv.nbytes / 2**20:.1f} MiB (bool would be {P * L / 2**20:.1f} MiB); "
           f"peak RSS so far {_rss_mb():.0f} MiB", flush=True)
 
-    mat = _material(P)
+    mat = uniform_lambert_ggx(P)
     # Warm-up: compile the chunk shapes once.
     for _, _, _, rad, _ in stage.simulate_chunks(surf, rig, [cam], mat, lv, cv, light_chunk=args.light_chunk,
                                                  sample_chunk=args.sample_chunk):
