@@ -127,7 +127,9 @@ def test_a_killed_conversion_resumes_where_it_stopped(scene, tmp_path, monkeypat
 
     mesh, _, _, _, masked, _ = scene
     photos = read_photo_capture(masked)
-    kw = {"surface_info": mesh_spec(None), "light_chunk": 40, "min_views": 2}  # 5 chunks a camera, 15 in all
+    # 5 chunks a camera, 15 in all; no cast shadows (their ray casting is most of a conversion and the same bits
+    # either way: test_the_store_holds_what_photos_to_texels_gives checks them)
+    kw = {"surface_info": mesh_spec(None), "light_chunk": 40, "min_views": 2, "shadows": False}
     _, ref = photos_to_texel_store(photos, mesh, RES, tmp_path / "whole.zarr", **kw)
     path = tmp_path / "texels.zarr"
 
