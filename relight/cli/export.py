@@ -28,6 +28,10 @@ def add_parser(sub) -> None:
                    help="cut out the texels no camera saw (base colour alpha = coverage, alphaMode MASK); default: "
                         "they keep the map set's fill (the nearest seen texel's material) and the coverage is in "
                         "extras only")
+    p.add_argument("--f0-max", type=float, default=None, metavar="F0",
+                   help="the F0 the 8-bit specular colour texture spans; a higher fitted F0 is clamped to it and "
+                        "counted (default: the largest fitted F0, nothing clamped; e.g. 0.1 gives skin's F0 ~ 0.03 "
+                        "finer steps when a few outlier texels reach 1)")
     finish_parser(p, run)
 
 
@@ -50,7 +54,9 @@ def run(args) -> int:
     if args.mesh is None and (args.units is not None or args.scale is not None or args.center is not None):
         raise CLIError("--units / --scale / --center place a --mesh; give the mesh too")
     mesh = mesh_from_args(args) if args.mesh is not None else None
-    r = write_gltf(folder, out, mesh=mesh, coverage_alpha=args.coverage_alpha)
+    if args.f0_max is not None and not 0.0 < args.f0_max <= 1.0:
+        raise CLIError(f"--f0-max {args.f0_max}: must be in (0, 1]")
+    r = write_gltf(folder, out, mesh=mesh, coverage_alpha=args.coverage_alpha, f0_max=args.f0_max)
     if summary(args):
         rungs = ", ".join(f"{name} {n}" for name, n in r.rungs.items() if n)
         print(f"wrote {out} ({r.bytes / 1e6:.2f} MB: {r.vertices} vertices, {r.faces} triangles, "
@@ -58,6 +64,9 @@ def run(args) -> int:
         if r.clamped.get("base_color"):
             print(f"relight export: note: {r.clamped['base_color']} texel(s) have a base colour rho_d / (1 - F0) "
                   "above 1, clamped (glTF's base colour is at most 1)", file=sys.stderr)
+        if r.clamped.get("f0"):
+            print(f"relight export: note: {r.clamped['f0']} texel(s) have a fitted F0 above --f0-max "
+                  f"{args.f0_max:g}, clamped to it", file=sys.stderr)
         if r.clamped.get("normal"):
             print(f"relight export: note: {r.clamped['normal']} texel(s) have a fitted normal beyond the mesh's "
                   "horizon, held at its edge", file=sys.stderr)

@@ -85,7 +85,7 @@ class GltfExport:
     """What :func:`write_gltf` wrote: the file, its size in bytes, the mesh's counts, the texture
     resolution (H, W), the texel samples per rung, the seen and filled (no camera saw them) texels, the
     texels whose value glTF could not hold (``clamped``: base colour above 1, normals beyond the horizon of
-    the interpolated frame) and the glTF extensions used."""
+    the interpolated frame, fitted F0 above ``f0_max``) and the glTF extensions used."""
 
     path: Path
     bytes: int
@@ -274,7 +274,7 @@ def _version() -> str:
 
 
 def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=None,
-               coverage_alpha: bool = False) -> GltfExport:
+               coverage_alpha: bool = False, f0_max: float | None = None) -> GltfExport:
     """Write a fitted map set as one binary glTF 2.0 file (``.glb``) with a PBR material.
 
     The mapping of each rung onto glTF's metallic-roughness material with ``KHR_materials_specular`` and
@@ -294,6 +294,10 @@ def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=N
             set's fill first (``relight.io.fill_unseen``: the nearest seen sample's material, the mesh's normal).
         coverage_alpha: put the coverage in the base colour's alpha with ``alphaMode`` MASK (texels no camera
             saw cut out); default False: they keep the set's fill and the coverage is only in extras.
+        f0_max: the F0 the specular colour texture spans (in (0, 1]); a higher fitted F0 is clamped to it and
+            counted in the result's ``clamped["f0"]``. Default None: the largest F0 of a specular texel (nothing
+            clamped). The texture is 8-bit sRGB of F0 / f0_max, so a few outliers at F0 ~ 1 cost the skin's
+            F0 ~ 0.03 a step of ~4% (docs/export.md).
 
     Returns:
         A :class:`GltfExport`.
@@ -308,6 +312,8 @@ def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=N
         Appendix B (the BRDF); the KHR_materials_specular and KHR_materials_anisotropy extensions.
     """
     path = Path(path)
+    if f0_max is not None and not (0.0 < f0_max <= 1.0):
+        raise ValueError(f"write_gltf: f0_max must be in (0, 1], got {f0_max!r}")
     if path.suffix.lower() != ".glb":
         raise ValueError(f"{path}: a binary glTF file must end in .glb")
     if isinstance(maps, (str, os.PathLike)):
@@ -324,7 +330,7 @@ def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=N
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     frames = texel_frames(normals, tangents, m.faces, np.asarray(surf.face), np.asarray(surf.barycentric))
     tex = encode_material(v["rho_d"], v["rho_s"], v["alpha"], v["normal"], v["tangent"], v["mfp"], v["model"],
-                          v["seen"], frames)
+                          v["seen"], frames, f0_max)
     images = _images(tex, surf.texel_index, src.resolution, coverage_alpha)
 
     buf = _Buffer()

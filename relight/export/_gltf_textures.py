@@ -172,7 +172,8 @@ class GltfTextures:
     clamped: dict
 
 
-def encode_material(rho_d, rho_s, alpha, normal, tangent, mfp, model, seen, frames) -> GltfTextures:
+def encode_material(rho_d, rho_s, alpha, normal, tangent, mfp, model, seen, frames,
+                    f0_max: float | None = None) -> GltfTextures:
     """The glTF texel values of per-sample maps (relight's model, ``relight.MaterialMaps``' fields as NumPy).
 
     Mapping (docs/export.md): roughness = sqrt(min(alpha_x, alpha_y)) (glTF's alpha = roughness^2); where the
@@ -187,6 +188,9 @@ def encode_material(rho_d, rho_s, alpha, normal, tangent, mfp, model, seen, fram
         rho_d [P, 3], rho_s [P] or [P, 1], alpha [P, 2], normal [P, 3] and tangent [P, 3] (world, the fitted
             frame), mfp [P, 3] (mm), model [P] (ladder rungs), seen [P] bool: the maps at the texel samples.
         frames: (T, B, N) at the samples (:func:`texel_frames`).
+        f0_max: the F0 of specular colour 1 (None: the largest F0 of a specular texel, so none is clamped);
+            a larger F0 is clamped to it and counted (``clamped["f0"]``). The colour is 8-bit sRGB of F0 / f0_max,
+            so a smaller f0_max gives the typical F0 finer steps (2.4 / (255 (e + 0.055)) relative at code e / 255).
 
     Returns:
         A :class:`GltfTextures`.
@@ -198,12 +202,17 @@ def encode_material(rho_d, rho_s, alpha, normal, tangent, mfp, model, seen, fram
     alpha = np.asarray(alpha, np.float64).copy()
     alpha[:, 1] = np.where(model >= GGX_ANISO, alpha[:, 1], alpha[:, 0])
     spec_on = model != LAMBERT
-    f0_max = float(f0[spec_on].max()) if spec_on.any() else 0.0
+    clamped = {"f0": 0}
+    if f0_max is None:
+        f0_max = float(f0[spec_on].max()) if spec_on.any() else 0.0
+    else:
+        clamped["f0"] = int(np.sum(spec_on & (f0 > f0_max)))
+        f0 = np.minimum(f0, f0_max)
     colour = _srgb8(np.repeat((f0 / f0_max if f0_max > 0 else f0)[:, None], 3, -1))
     strength = np.where(spec_on & (f0_max > 0), 255, 0).astype(np.uint8)
     f0_q = f0_max * _unsrgb8(colour[:, 0]) * (strength / 255.0)
     base_lin = rho_d / (1.0 - np.minimum(f0_q, 1.0 - 1e-6))[:, None]
-    clamped = {"base_color": int(np.sum(np.any(base_lin > 1.0 + 1e-6, -1)))}
+    clamped["base_color"] = int(np.sum(np.any(base_lin > 1.0 + 1e-6, -1)))
     a_min, a_max = alpha.min(1), alpha.max(1)
     rough = _u8(np.sqrt(np.clip(a_min, 0.0, 1.0)))
     metal_rough = np.stack([np.full_like(rough, 255), rough, np.zeros_like(rough)], -1)

@@ -202,7 +202,21 @@ def test_every_rung_reads_back_within_quantisation(quad):
     lin = np.asarray(srgb_decode(np.asarray(srgb_encode(np.asarray(maps.rho_d, np.float64)))))
     # within the 8-bit sRGB step at each value (below 0.8 a code is < 1.3% of the value above 0.05)
     np.testing.assert_allclose(rho_d, lin, rtol=0.03, atol=1e-3)
-    assert export.clamped == {"base_color": 0, "normal": 0}
+    assert export.clamped == {"f0": 0, "base_color": 0, "normal": 0}
+
+
+def test_f0_max_clamps_and_counts(quad, tmp_path):
+    """f0_max: the specular colour spans F0 up to it; specular texels above are clamped to it and counted; the
+    others read back within 8-bit sRGB (finer than the default's steps, whose range is the largest F0)."""
+    _, mesh, surface, maps, _ = quad
+    spec = np.asarray(maps.model) != LAMBERT
+    rho_s = np.asarray(maps.rho_s)[:, 0]
+    export = write_gltf(maps, tmp_path / "f.glb", mesh=mesh, surface=surface, f0_max=0.04)
+    assert export.clamped["f0"] == int(np.sum(spec & (rho_s > 0.04))) > 0
+    back = np.asarray(gltf_maps(tmp_path / "f.glb", surface).rho_s)[:, 0]
+    np.testing.assert_allclose(back[spec], np.minimum(rho_s, 0.04)[spec], rtol=0.015)
+    with pytest.raises(ValueError, match="f0_max"):
+        write_gltf(maps, tmp_path / "g.glb", mesh=mesh, surface=surface, f0_max=0.0)
 
 
 def test_unseen_and_off_chart_texels_hold_a_neighbour_not_a_constant(tmp_path):
