@@ -135,12 +135,12 @@ def _from_folder(folder: Path, mesh) -> _Source:
     values = {"rho_d": flat(textures.albedo), "rho_s": flat(textures.specular), "alpha": flat(textures.alpha),
               "normal": flat(textures.normal), "tangent": flat(textures.tangent), "mfp": flat(textures.mfp),
               "model": flat(textures.model), "seen": flat(textures.coverage)}
-    meta = info_meta = textures.info.get("metadata", {}) or {}
+    meta = textures.info.get("metadata", {}) or {}
     rig = None
     if isinstance(meta, Mapping) and meta.get("rig") and (folder / str(meta["rig"])).is_file():
         rig = stage.rig_to_dict(stage.load_rig(folder / str(meta["rig"])))
     record = {k: textures.info.get(k) for k in ("resolution", "surface", "unseen", "writer")}
-    record["metadata"] = info_meta
+    record["metadata"] = meta
     return _Source(mesh, surface, values, textures.resolution, record, rig)
 
 
@@ -264,6 +264,23 @@ def _extras(src: _Source, tex: GltfTextures, index: dict, coverage_alpha: bool, 
             "clamped": tex.clamped, "maps": src.record, "rig": src.rig}
 
 
+def _vertex_normals(mesh) -> np.ndarray:
+    """The mesh's vertex normals made unit (glTF's NORMAL must be); a zero one (a file's) is replaced by the
+    area-weighted normal of the vertex's triangles."""
+    n = np.asarray(mesh.normals, np.float64)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    bad = length[:, 0] < 1e-12
+    if bad.any():
+        v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+        area = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        acc = np.zeros_like(v)
+        for k in range(3):
+            np.add.at(acc, f[:, k], area)
+        n = np.where(bad[:, None], acc, n)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 1e-12, length, 1.0) + np.where(length > 1e-12, 0.0, [[0.0, 0.0, 1.0]])
+
+
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -325,9 +342,8 @@ def write_gltf(maps, path: str | os.PathLike, *, mesh=None, surface=None, seen=N
     m, surf, v = src.mesh, src.surface, src.values
     if m.uv is None:
         raise ValueError(f"mesh '{m.name}' has no UV coordinates; a glTF export needs them")
-    tangents = vertex_tangents(m.vertices, m.faces, m.normals, m.uv)
-    normals = np.asarray(m.normals, np.float64)
-    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = _vertex_normals(m)
+    tangents = vertex_tangents(m.vertices, m.faces, normals, m.uv)
     frames = texel_frames(normals, tangents, m.faces, np.asarray(surf.face), np.asarray(surf.barycentric))
     tex = encode_material(v["rho_d"], v["rho_s"], v["alpha"], v["normal"], v["tangent"], v["mfp"], v["model"],
                           v["seen"], frames, f0_max)
