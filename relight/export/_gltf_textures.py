@@ -127,6 +127,12 @@ def to_tangent_space(d, T, B, N) -> np.ndarray:
     """Unit coordinates c with T c_x + B c_y + N c_z parallel to the world direction ``d`` ([P, 3] each):
     what a normal texture must hold for a renderer that decodes n = normalize(T x + B y + N z)."""
     M = np.stack([T, B, N], axis=-1)  # columns T, B, N
+    # A frame that spans no volume (a triangle across a UV mirror seam, whose vertices' w differ, can
+    # interpolate B to ~0 or onto T) is replaced by the orthonormal (T', N x T', N) there: no solve fails.
+    bad = np.abs(np.linalg.det(M)) < 1e-6
+    if bad.any():
+        t = _unit(T[bad] - np.sum(T[bad] * N[bad], -1, keepdims=True) * N[bad], _any_perpendicular(N[bad]))
+        M[bad] = np.stack([t, np.cross(N[bad], t), N[bad]], axis=-1)
     return _unit(np.linalg.solve(M, np.asarray(d, np.float64)[..., None])[..., 0])
 
 
