@@ -6,7 +6,8 @@ Commands (the same flag names everywhere: ``--out``, ``--envmap``, ``--rig``,
 * ``simulate``: a texel-space OLAT capture of a mesh into a capture folder;
 * ``fit``: reflectance maps from a capture folder (texture set + Mitsuba scene);
 * ``render``: relight a capture (image-based) or a map set (model-based);
-* ``convert``: a capture folder to a chunked Zarr v3 capture store, or back;
+* ``convert``: a capture folder to a chunked Zarr v3 capture store, or back; a photo capture to a texel store;
+* ``export``: a fitted map set as binary glTF 2.0 (``--gltf OUT.glb``) for other tools;
 * ``demo``: simulate, fit and relight the bundled head in one go;
 * ``view``: index.html, the results viewer (a self-contained page with an environment-rotation slider);
 * ``reseal``: accept hand edits of a result folder (its manifest rewritten over the files as they now are);
