@@ -4,6 +4,7 @@
     python scripts/bench_fit.py                          # 1024 texels, scipy on 256 of them
     python scripts/bench_fit.py --texels 16384 --scipy-texels 1024
     python scripts/bench_fit.py --chunks 128,512,2048 --steps 5,10,20,40
+    python scripts/bench_fit.py --ceres-jacobian autodiff --ceres-linear qr,cholesky --ceres-loss sqrt,cauchy
 
 Scene: a sphere of radius 50 mm at the centre of the Light Stage X (346
 near-field lights), one camera 1 m in front; samples on the camera-facing
@@ -13,8 +14,8 @@ F0 ~ U(0.02, 0.08), alpha ~ U(0.1, 0.6), the shading normal tilted 5 degrees
 from the geometric one in a random azimuth (the fit starts from the geometric
 frame, photometric stereo then moves it). Radiance x (1 + 0.01 N(0, 1)).
 
-Ours: ``relight.fit(capture, surface, model="ggx", normals=True)`` (Cauchy
-loss) for every (solver, chunk, steps_per_round) setting asked for: solver
+Ours: ``relight.fit(capture, surface, model="ggx", normals=True, loss="cauchy")``
+for every (solver, chunk, steps_per_round) setting asked for: solver
 "lm" (the default, ``relight.fitting.NormalLevenbergMarquardt``) and
 "optx-lm" (``optimistix.LevenbergMarquardt``, the default before), with
 ``rounds`` = 60 / steps_per_round (the same 60-step budget per sample); one
@@ -34,7 +35,31 @@ roughness-grid start, ``relight.fitting.start_parameters``, under JAX), the
 same valid observations (``relight.fitting.observations``), on a random subset of ``--scipy-texels`` of the
 texels. Its throughput is that subset's texels / seconds. Accuracies
 (median relative albedo and roughness error, median normal angle error) are
-reported for ours on all texels and for both on the common subset.
+reported for ours on all texels and for each baseline on the common subset.
+
+Reference: Ceres 2.1 (Debian's ``libceres-dev``; without it the line is skipped
+with how to install it), ``scripts/ceres_fit.cc`` compiled here with g++ -O3
+-march=native once per run (``scripts/_ceres.py``): the same problem (the numpy
+model above, term for term: the run checks Ceres's cost against numpy's at the
+start and at the solution), the same starts and valid observations, one
+``ceres::Problem`` per texel solved by Levenberg-Marquardt (at most 60 steps, or
+until Ceres's tolerances stop it), texels spread over ``--ceres-threads``
+threads (default: the cores). One row per (``--ceres-loss``, ``--ceres-jacobian``,
+``--ceres-linear``) setting: the square-rooted Cauchy residual in one residual
+block, or ``ceres::CauchyLoss`` on one block per observation and channel;
+automatic derivatives (Jet<double, 7>) or a structured Jacobian (closed-form
+albedo columns, dual numbers for the lobe only: what relight's does); dense QR
+or dense normal-equations Cholesky. Its throughput is ``--ceres-texels`` (all by
+default, at least the scipy subset) / the C++ solve time (std::chrono; the
+files, the process start and the starts are outside it, where ours counts its
+packing and start); the wall time with the file exchange is printed beside it.
+
+Texels per CPU second: texels / the process's CPU seconds in the same timed
+calls (ours and scipy: ``time.process_time``; Ceres: its process CPU clock
+around the solve), all threads; less moved by other users of a shared machine
+than the wall time. ``--phases``: our best setting's phases (packing, start,
+solve, uncertainties) re-run one by one through relight.fitting's public
+per-sample problems (:func:`our_phases`), to say where our time goes.
 
 Peak memory: ``ru_maxrss`` of the process (whole process: JAX, the capture,
 compiled code) after each stage.
@@ -42,10 +67,13 @@ compiled code) after each stage.
 
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
+import _ceres
 import jax
 import numpy as np
 from _common import FIG, capture_of, errors, front_camera, machine, maxrss_mib, parser, sphere_surface, tilt, truth
@@ -105,23 +133,29 @@ def packed_data(capture, surface, lay):
     return obs.radiance, obs.weight, obs.wi, obs.wo, obs.irradiance, u0
 
 
+def texel_problem(p, data, floor, cauchy=0.1):
+    """Texel p's valid observations (float64) and Cauchy scale: np_residual's arguments after u."""
+    obs, w, wi, wo, irr, _ = data
+    v = w[p, :, 0] > 0
+    o, a, b, e = (np.asarray(x[p][v], np.float64) for x in (obs, wi, wo, irr))
+    scale = np.sqrt(np.sum(o * o) / max(o.size, 1))
+    return o, a, b, e, floor, None if cauchy is None else cauchy * scale + 1e-12
+
+
 def scipy_fit(idx, data, floor, cauchy=0.1, method="lm"):
-    """One scipy.optimize.least_squares per texel; returns u [n, 7], nfev [n], seconds."""
+    """One scipy.optimize.least_squares per texel; returns u [n, 7], nfev [n], seconds, CPU seconds."""
     from scipy.optimize import least_squares
 
-    obs, w, wi, wo, irr, u0 = data
+    u0 = data[5]
     out = np.zeros((len(idx), u0.shape[1]))
     nfev = np.zeros(len(idx), int)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for j, p in enumerate(idx):
-        v = w[p, :, 0] > 0
-        o, a, b, e = (np.asarray(x[p][v], np.float64) for x in (obs, wi, wo, irr))
-        scale = np.sqrt(np.sum(o * o) / max(o.size, 1))
-        c = None if cauchy is None else cauchy * scale + 1e-12
-        sol = least_squares(np_residual, np.asarray(u0[p], np.float64), method=method, args=(o, a, b, e, floor, c),
+        sol = least_squares(np_residual, np.asarray(u0[p], np.float64), method=method,
+                            args=texel_problem(p, data, floor, cauchy),
                             xtol=1e-8, ftol=1e-8, gtol=1e-8, max_nfev=2000 if method != "lm" else None)
         out[j], nfev[j] = sol.x, sol.nfev
-    return out, nfev, time.perf_counter() - t0
+    return out, nfev, time.perf_counter() - t0, time.process_time() - c0
 
 
 def u_to_physical(u, surface, floor, idx):
@@ -134,6 +168,90 @@ def u_to_physical(u, surface, floor, idx):
     T, B, N = (np.asarray(x, np.float64)[idx] for x in (surface.tangent, surface.bitangent, surface.normal))
     n = nl[:, :1] * T + nl[:, 1:2] * B + nl[:, 2:3] * N
     return rho, al, n
+
+
+def physical_errors(u, surface, floor, idx, rho, alpha, normal):
+    """Per-texel errors of u [n, 7] for the samples idx: relative albedo (mean over RGB), relative
+    roughness, normal angle (deg)."""
+    r, a, n = u_to_physical(u, surface, floor, idx)
+    return (np.mean(np.abs(r - rho[idx]) / rho[idx], 1), np.abs(a - alpha[idx, 0]) / alpha[idx, 0],
+            np.rad2deg(np.arccos(np.clip(np.sum(n * normal[idx], 1), -1, 1))))
+
+
+def ceres_fits(args, data, idx, floor, surface, rho, alpha, normal):
+    """The Ceres rows: compile scripts/ceres_fit.cc once, then solve the Ceres texels (``--ceres-texels``,
+    0 = all; always including the scipy subset idx) for each (loss, jacobian, linear) setting, fastest of
+    ``--repeat``. Returns (texel indices, rows, compile seconds); no rows where Ceres is not installed."""
+    P = len(data[5])
+    n = P if args.ceres_texels <= 0 else min(max(args.ceres_texels, len(idx)), P)
+    rest = np.setdiff1d(np.arange(P), idx)
+    cidx = np.sort(np.concatenate([idx, np.random.default_rng(6).choice(rest, n - len(idx), replace=False)]))
+    settings = [(lo, jac, lin) for lo in args.ceres_loss.split(",") for jac in args.ceres_jacobian.split(",")
+                for lin in args.ceres_linear.split(",") if lo == "sqrt" or jac == "autodiff"]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench_fit_ceres_") as tmp:
+        exe, t_cc, why = _ceres.build(Path(tmp))
+        if exe is None:
+            print(f"# Ceres rows skipped: {why}")
+            return cidx, rows, 0.0
+        print(f"# Ceres: compiled {_ceres.SOURCE.name} in {t_cc:.1f} s (g++ -O3 -march=native)")
+        arrays = tuple(np.asarray(x)[cidx] for x in data)
+        at = np.searchsorted(cidx, idx)  # the scipy subset's rows among the Ceres texels
+        for loss, jac, lin in settings:
+            r = _ceres.solve(exe, arrays, floor, repeat=args.repeat, threads=args.ceres_threads or None, loss=loss,
+                             linear=lin, jacobian=jac)
+            # Ceres's cost (0.5 sum r^2) against the numpy reference's at the start and at the solution.
+            ref = [(0.5 * np.sum(np_residual(np.asarray(data[5][p], np.float64), *texel_problem(p, data, floor)) ** 2),
+                    0.5 * np.sum(np_residual(r["u"][j], *texel_problem(p, data, floor)) ** 2))
+                   for p, j in zip(idx, at, strict=True)]
+            ref = np.asarray(ref)
+            dcost = np.max(np.abs(np.stack([r["cost0"][at], r["cost"][at]], 1) - ref) / ref, axis=0)
+            err = physical_errors(r["u"], surface, floor, cidx, rho, alpha, normal)
+            name = (f"Ceres {r['version']} LM ({jac}, dense {'QR' if lin == 'qr' else 'Cholesky'}"
+                    f"{', CauchyLoss' if loss == 'cauchy' else ''}), C++ -O3, {r['threads']} threads")
+            row = dict(name=name, n=len(cidx), t=r["solve_s"], wall=r["wall_s"], tps=len(cidx) / r["solve_s"],
+                       tpc=len(cidx) / r["cpu_s"],
+                       e_rho=np.median(err[0]), e_alpha=np.median(err[1]), e_n=np.median(err[2]),
+                       sub=tuple(e[at] for e in err), failed=1 - np.mean(r["converged"]),
+                       iters=np.mean(r["iterations"]), dcost=dcost, phases=r["phases"])
+            rows.append(row)
+            ph = row["phases"]
+            split = ", ".join(f"{k} {ph[k] / ph['solve']:.0%}" for k in _ceres.PHASES[1:])
+            print(f"  {name}: {row['t']:.2f} s, {row['tps']:.1f} texels/s (wall with the file exchange "
+                  f"{row['wall']:.2f} s), mean {row['iters']:.1f} iterations, not converged {row['failed']:.2%}; "
+                  f"cost vs numpy: max rel diff {dcost[0]:.1e} at the start, {dcost[1]:.1e} at the solution; "
+                  f"Ceres's time: {split}", flush=True)
+    return cidx, rows, t_cc
+
+
+def our_phases(capture, surface, lay, chunk, steps, repeat):
+    """Where relight.fit's time goes, its phases re-run one by one through relight.fitting's public
+    per-sample problems on the same texels, in chunks of ``chunk`` (padded, as the fit does): packing
+    (``observations``), start (``start_parameters``), solve (``solve_samples``: ``steps`` LM steps, then the
+    accept test and the uncertainties: the fit's first round) and that call with 1 step (the uncertainties
+    and each call's fixed cost, plus one step). Fastest of ``repeat`` after one compiling call; seconds."""
+    from relight.fitting import Observations, observations, solve_samples, start_parameters
+
+    def timed(fn):
+        jax.block_until_ready(fn())
+        t = np.inf
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            t = min(t, time.perf_counter() - t0)
+        return t
+
+    out = dict(packing=timed(lambda: observations(capture, surface).radiance))
+    obs = observations(capture, surface)
+    P = len(obs.radiance)
+    parts = [Observations(*(x[np.resize(np.arange(s, min(s + chunk, P)), chunk)] for x in obs[:5]))
+             for s in range(0, P, chunk)]
+    out["start"] = timed(lambda: [start_parameters(p, lay) for p in parts])
+    u0 = [start_parameters(p, lay) for p in parts]
+    for name, k in ((f"solve ({steps} steps + uncertainties)", steps), ("solve (1 step + uncertainties)", 1)):
+        out[name] = timed(lambda k=k: [solve_samples(u, p, lay, max_steps=k, cauchy=0.1)[:5]
+                                       for u, p in zip(u0, parts, strict=True)])
+    return out
 
 
 # --------------------------------------------------------------------------- the benchmark
@@ -151,6 +269,15 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3,
                     help="timed calls per setting (and of scipy); the fastest is reported, so load spikes from "
                          "other processes bias neither side of the ratio")
+    ap.add_argument("--ceres-texels", type=int, default=0,
+                    help="texels for Ceres (0: all; at least the scipy subset); -1: no Ceres rows")
+    ap.add_argument("--ceres-loss", default="sqrt", help="comma list: sqrt (the square-rooted Cauchy residual, "
+                    "as numpy), cauchy (ceres::CauchyLoss, one block per observation and channel)")
+    ap.add_argument("--ceres-jacobian", default="autodiff,structured", help="comma list: autodiff, structured")
+    ap.add_argument("--ceres-linear", default="qr,cholesky", help="comma list: qr, cholesky (dense)")
+    ap.add_argument("--ceres-threads", type=int, default=0, help="Ceres's threads (0: the cores)")
+    ap.add_argument("--phases", action="store_true",
+                    help="also time our fit's phases (packing, start, solve) one by one at the best setting")
     ap.add_argument("--out", default=str(FIG))
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -175,7 +302,7 @@ def main(argv=None):
                 for s in args.steps.split(",")]
     for solver, chunk, spr in settings:
         rounds = args.rounds or max(1, -(-60 // spr))
-        kw = dict(model="ggx", normals=True, solver=solver,
+        kw = dict(model="ggx", normals=True, solver=solver, loss="cauchy",
                   options=relight.fitting.FitOptions(chunk=chunk, steps_per_round=spr, rounds=rounds))
         # Warm-up on chunk samples including the one with the most valid observations
         # (the packed observation count, hence every shape, is the full fit's): compiles.
@@ -187,14 +314,14 @@ def main(argv=None):
         relight.fit(stage.Capture(cap.radiance[:, :, sub], cap.mask[:, :, sub], cap.rig, cap.cameras),
                     geo.subset(sub), **kw)
         t_first = time.perf_counter() - t0
-        t = np.inf
+        t = cpu = np.inf
         for _ in range(args.repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             f = relight.fit(cap, geo, **kw)
             jax.block_until_ready(f.rho_d)
-            t = min(t, time.perf_counter() - t0)
+            t, cpu = min(t, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
         er, ea, en = errors(f, rho, alpha, normal_true)
-        row = dict(solver=solver, chunk=chunk, spr=spr, rounds=rounds, t=t,
+        row = dict(solver=solver, chunk=chunk, spr=spr, rounds=rounds, t=t, cpu=cpu,
                    compile=max(t_first - t * len(sub) / args.texels, 0.0),
                    tps=args.texels / t, e_rho=np.median(er), e_alpha=np.median(ea), e_n=np.median(en),
                    failed=float(np.mean(np.asarray(f.failed))), steps=float(np.mean(np.asarray(f.steps))),
@@ -214,45 +341,50 @@ def main(argv=None):
     data = packed_data(cap, geo, lay)
     rng = np.random.default_rng(5)
     idx = np.sort(rng.choice(args.texels, min(args.scipy_texels, args.texels), replace=False))
-    t_sp = np.inf
+    t_sp = cpu_sp = np.inf
     for _ in range(args.repeat):
-        u_sp, nfev, t_once = scipy_fit(idx, data, floor, method=args.scipy_method)
-        t_sp = min(t_sp, t_once)
+        u_sp, nfev, t_once, cpu_once = scipy_fit(idx, data, floor, method=args.scipy_method)
+        t_sp, cpu_sp = min(t_sp, t_once), min(cpu_sp, cpu_once)
     rss_sp = maxrss_mib()
-    rho_sp, al_sp, n_sp = u_to_physical(u_sp, geo, floor, idx)
-    er_sp = np.mean(np.abs(rho_sp - rho[idx]) / rho[idx], 1)
-    ea_sp = np.abs(al_sp - alpha[idx, 0]) / alpha[idx, 0]
-    en_sp = np.rad2deg(np.arccos(np.clip(np.sum(n_sp * normal_true[idx], 1), -1, 1)))
+    er_sp, ea_sp, en_sp = physical_errors(u_sp, geo, floor, idx, rho, alpha, normal_true)
     tps_sp = len(idx) / t_sp
-    # The start alone (what both refine from).
-    rho0, al0, n0 = u_to_physical(np.asarray(data[5][idx], np.float64), geo, floor, idx)
-    er0 = np.mean(np.abs(rho0 - rho[idx]) / rho[idx], 1)
-    ea0 = np.abs(al0 - alpha[idx, 0]) / alpha[idx, 0]
-    en0 = np.rad2deg(np.arccos(np.clip(np.sum(n0 * normal_true[idx], 1), -1, 1)))
+    # The start alone (what all refine from).
+    er0, ea0, en0 = physical_errors(np.asarray(data[5][idx], np.float64), geo, floor, idx, rho, alpha, normal_true)
+    # Ceres on all texels (or --ceres-texels of them, the scipy subset among them).
+    cidx, ce_rows, t_cc = ceres_fits(args, data, idx, floor, geo, rho, alpha, normal_true) \
+        if args.ceres_texels >= 0 else (None, [], 0.0)
+    tps_ce = max((r["tps"] for r in ce_rows), default=np.nan)
+    tpc_ce = max((r["tpc"] for r in ce_rows), default=np.nan)
 
     bf = best["fit"]
     er_b, ea_b, en_b = (x[idx] for x in errors(bf, rho, alpha, normal_true))
 
-    lines = ["| method | chunk | steps/round x rounds | texels | wall s | texels/s | compile s | ratio vs scipy | "
-             "median albedo err | median alpha err | median normal err (deg) | failed | peak RSS MiB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    vs = lambda tps: f"{tps / tps_ce:.2f}x" if ce_rows else "-"  # noqa: E731
+    lines = ["| method | chunk | steps/round x rounds | texels | wall s | texels/s | texels/CPU s | compile s | "
+             "ratio vs scipy | ratio vs fastest Ceres | median albedo err | median alpha err | "
+             "median normal err (deg) | failed | peak RSS MiB |", "|---" * 15 + "|"]
+    acc_cells = lambda r: f"{r['e_rho']:.3%} | {r['e_alpha']:.2%} | {r['e_n']:.3f}"  # noqa: E731
     for r in rows:
         lines.append(f"| relight.fit {r['solver']} | {r['chunk']} | {r['spr']} x {r['rounds']} | {args.texels} | "
-                     f"{r['t']:.2f} | "
-                     f"{r['tps']:.1f} | {r['compile']:.1f} | {r['tps'] / tps_sp:.1f}x | {r['e_rho']:.3%} | "
-                     f"{r['e_alpha']:.2%} | {r['e_n']:.3f} | {r['failed']:.2%} | {r['rss']:.0f} |")
+                     f"{r['t']:.2f} | {r['tps']:.1f} | {args.texels / r['cpu']:.1f} | {r['compile']:.1f} | "
+                     f"{r['tps'] / tps_sp:.1f}x | {vs(r['tps'])} | {acc_cells(r)} | {r['failed']:.2%} | "
+                     f"{r['rss']:.0f} |")
+    sp = dict(e_rho=np.median(er_sp), e_alpha=np.median(ea_sp), e_n=np.median(en_sp))
     lines.append(f"| scipy least_squares {args.scipy_method} (2-point J) | 1 | until converged | {len(idx)} | "
-                 f"{t_sp:.2f} | {tps_sp:.1f} | 0 | 1.0x | {np.median(er_sp):.3%} | {np.median(ea_sp):.2%} | "
-                 f"{np.median(en_sp):.3f} | - | {rss_sp:.0f} |")
+                 f"{t_sp:.2f} | {tps_sp:.1f} | {len(idx) / cpu_sp:.1f} | 0 | 1.0x | {vs(tps_sp)} | {acc_cells(sp)} | "
+                 f"- | {rss_sp:.0f} |")
+    for r in ce_rows:
+        lines.append(f"| {r['name']} | 1 | <= 60, mean {r['iters']:.1f} | {r['n']} | {r['t']:.2f} | {r['tps']:.1f} | "
+                     f"{r['tpc']:.1f} | {t_cc:.1f} (g++) | {r['tps'] / tps_sp:.1f}x | {vs(r['tps'])} | "
+                     f"{acc_cells(r)} | {r['failed']:.2%} | - |")
     table = "\n".join(lines)
+    acc = lambda name, er, ea, en: (f"| {name} | {np.median(er):.3%} | {np.median(ea):.2%} | "  # noqa: E731
+                                    f"{np.median(en):.3f} | {np.percentile(en, 90):.3f} |")
     same = ["| on the scipy subset | median albedo err | median alpha err | median normal err (deg) | "
             "90th pct normal err |", "|---|---|---|---|---|",
-            f"| start (photometric stereo + alpha grid) | {np.median(er0):.3%} | {np.median(ea0):.2%} | "
-            f"{np.median(en0):.3f} | {np.percentile(en0, 90):.3f} |",
-            f"| relight.fit (best setting) | {np.median(er_b):.3%} | {np.median(ea_b):.2%} | {np.median(en_b):.3f} | "
-            f"{np.percentile(en_b, 90):.3f} |",
-            f"| scipy least_squares | {np.median(er_sp):.3%} | {np.median(ea_sp):.2%} | {np.median(en_sp):.3f} | "
-            f"{np.percentile(en_sp, 90):.3f} |"]
+            acc("start (photometric stereo + alpha grid)", er0, ea0, en0),
+            acc("relight.fit (best setting)", er_b, ea_b, en_b), acc("scipy least_squares", er_sp, ea_sp, en_sp),
+            *(acc(r["name"], *r["sub"]) for r in ce_rows)]
     same = "\n".join(same)
     print()
     print(table)
@@ -260,12 +392,27 @@ def main(argv=None):
     print(same)
     nfev_line = (f"scipy: mean {np.mean(nfev):.1f} residual evaluations outside the finite-difference Jacobians "
                  "(MINPACK nfev, about one per iteration; each Jacobian adds 7) per texel")
-    print("\n" + nfev_line)
+    notes = [nfev_line]
+    if args.phases:
+        ph = our_phases(cap, geo, lay, best["chunk"], best["spr"], args.repeat)
+        notes.append(f"relight.fit {best['solver']} chunk={best['chunk']} ({best['t']:.2f} s), its phases re-run one "
+                     "by one (public per-sample problems, fastest of --repeat): "
+                     + ", ".join(f"{k} {v:.2f} s" for k, v in ph.items()))
+    for r in ce_rows:
+        ph = r["phases"]
+        notes.append(f"{r['name']}: wall {r['wall']:.2f} s with the file exchange and the process start "
+                     f"(solve {r['t']:.2f} s); cost against numpy's, max relative difference {r['dcost'][0]:.1e} "
+                     f"at the start, {r['dcost'][1]:.1e} at the solution; Ceres's time: "
+                     + ", ".join(f"{k} {ph[k] / ph['solve']:.0%}" for k in _ceres.PHASES[1:]))
+    print("\n" + "\n".join(notes))
+    ce_best = (f", {best['tps'] / tps_ce:.2f}x the fastest Ceres ({tps_ce:.1f} texels/s on {os.cpu_count()} cores; "
+               f"per CPU second {args.texels / best['cpu'] / tpc_ce:.2f}x)" if ce_rows else "")
     print(f"best: {best['solver']} chunk={best['chunk']} steps/round={best['spr']}: {best['tps']:.1f} texels/s = "
-          f"{best['tps'] / tps_sp:.1f}x scipy ({tps_sp:.1f} texels/s); goal >= 10x")
+          f"{best['tps'] / tps_sp:.1f}x scipy ({tps_sp:.1f} texels/s){ce_best}; goals >= 10x scipy, >= 1x Ceres")
     md = out / "fit_bench.md"
     cmd = " ".join(sys.argv[1:] if argv is None else argv)
-    md.write_text(f"Machine: {machine()}\n\n`python scripts/bench_fit.py {cmd}`\n\n{table}\n\n{same}\n\n{nfev_line}.\n")
+    md.write_text(f"Machine: {machine()}\n\n`python scripts/bench_fit.py {cmd}`\n\n{table}\n\n{same}\n\n"
+                  + "".join(f"{n}.\n\n" for n in notes).rstrip() + "\n")
 
     import matplotlib
     matplotlib.use("Agg")
@@ -276,6 +423,8 @@ def main(argv=None):
         ax.scatter(r["tps"], r["e_n"], c="C0" if r["solver"] == "lm" else "C1")
         ax.annotate(f"{r['chunk']}/{r['spr']}", (r["tps"], r["e_n"]), fontsize=7)
     ax.scatter(tps_sp, np.median(en_sp), c="C3", marker="s", label=f"scipy {args.scipy_method}")
+    for i, r in enumerate(ce_rows):
+        ax.scatter(r["tps"], r["e_n"], c=f"C{4 + i}", marker="^", label=r["name"].split(", C++")[0])
     ax.scatter([], [], c="C0", label="relight.fit lm (chunk/steps per round)")
     ax.scatter([], [], c="C1", label="relight.fit optx-lm (optx.LevenbergMarquardt)")
     ax.set_xscale("log")
