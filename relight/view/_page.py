@@ -5,16 +5,19 @@ script are inline.
 What it shows, from what the folder holds: the relit subject with an environment-rotation slider (the
 :class:`relight.view.Sweep` rows given), report.md (:func:`relight.view.markdown_html`), truth | fit | error of
 the diffuse albedo, specular albedo and roughness where a truth map set is at hand (a demo's ``truth/`` and
-``maps/``, a fit's capture's ``truth/``), the texel-space maps, every other PNG (previews, charts, relit
-frames), and settings.json.
+``maps/``, a fit's capture's ``truth/``), a WebGL2 "3D view" of a map set on its mesh
+(``relight/view/_page3d.py``), the texel-space maps, every other PNG (previews, charts, relit frames), and
+settings.json.
 
 Self-test (tests/relight/test_view.py): opened as ``index.html#selftest``, the page waits for its load
 event (every embedded image decoded), moves the slider itself and writes ``<pre id="selftest-result">``
 holding JSON: the errors a hook installed first in ``<head>`` caught (``window.onerror``, ``console.error``,
 unhandled rejections, images that failed to load), the images and how many of them did not decode, the
 number of sweeps and frames, a hash of the displayed image's ``src`` before and after the move, and the width
-the first frame decoded to (``moved_width``, the new frame's, once it has loaded). The result is written at
-once, not after a promise: a headless browser's virtual time does not wait for image decoding.
+the first frame decoded to (``moved_width``, the new frame's, once it has loaded), and the 3D view's own
+self-test (``view3d``: WebGL2, frame hashes, GL errors, the analytic sphere's pixels) where the page has one.
+The result is written at once, not after a promise: a headless browser's virtual time does not wait for image
+decoding.
 """
 
 from __future__ import annotations
@@ -236,6 +239,7 @@ function selftest(){var r={errors:window.__errors,sweeps:S.length,frames:S.lengt
   img.addEventListener('load',function(){r.moved_width=img.naturalWidth;write();});
   slider.value=String(Math.floor(S[0].frames.length/2));slider.dispatchEvent(new Event('input'));
   r.after=hash(img.src);r.value=slider.value;}
+ if(window.VIEW3D&&window.VIEW3D.selftest){r.view3d=window.VIEW3D.selftest();}
  write();document.body.appendChild(p);}
 if(location.hash==='#selftest'){if(document.readyState==='complete'){selftest();}
  else{window.addEventListener('load',selftest);}}
@@ -333,11 +337,12 @@ def _gallery(folder: Path, embed) -> tuple[list[str], list[str]]:
 
 
 def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, title: str | None = None,
-              location: str | os.PathLike | None = None) -> str:
+              location: str | os.PathLike | None = None, envmap: str | os.PathLike | None = None) -> str:
     """The viewer page of ``folder`` (see the module docstring) as an HTML string: ``sweeps``
     (:class:`Sweep` rows sharing one slider; their angles are the first's), ``note`` (why there is no slider,
     shown in its place), ``title`` (default: the folder's name and the command that wrote it), ``location``
-    (the folder the page describes, when it is written into a result set still being built elsewhere)."""
+    (the folder the page describes, when it is written into a result set still being built elsewhere),
+    ``envmap`` (the 3D view's environment; default the one settings.json records, else the bundled map)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such result folder")
@@ -375,6 +380,17 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
     truth_dir, fit_dir = _truth_pair(folder)
     if truth_dir is not None and fit_dir is not None:
         section("truth", "Truth | fit | error", _comparison_html(folder, truth_dir, fit_dir, location is not None))
+    script3d = ""
+    if fit_dir is not None:  # the maps on the mesh in WebGL2 (relight/view/_page3d.py), at the sweeps' exposure
+        from ._page3d import view3d_html
+
+        exposure = next((s.exposure for s in sweeps if np.isfinite(s.exposure)), None)
+        try:  # like a sweep's, its failure leaves a note, never a failed page
+            html3d, script3d = view3d_html(folder, truth_dir, fit_dir, settings, exposure,
+                                           folder if location is not None else None, envmap)
+        except (ValueError, RuntimeError, OSError) as err:
+            html3d, script3d = f'<p class="note">no 3D view: {_esc(err)}</p>', ""
+        section("view3d", "3D view", html3d)
 
     maps, others = _gallery(folder, embed)
     if maps:
@@ -392,17 +408,18 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
             f"<script>{_HOOK}</script>\n<title>{_esc(title)}</title>\n"
             "<meta name='viewport' content='width=device-width, initial-scale=1'>\n"
             f"<style>{_CSS}</style></head>\n<body><header><h1>{_esc(title)}</h1>{sub}<nav>{''.join(nav)}</nav>"
-            f"</header><main>\n{''.join(body)}\n</main>\n<script>{script_data}</script>\n<script>{_SCRIPT}</script>\n"
+            f"</header><main>\n{''.join(body)}\n</main>\n<script>{script_data}</script>\n"
+            + (f"<script>{script3d}</script>\n" if script3d else "") + f"<script>{_SCRIPT}</script>\n"
             "</body></html>\n")
 
 
 def write_index(folder: str | os.PathLike, sweeps=(), note: str | None = None, title: str | None = None,
-                location: str | os.PathLike | None = None) -> Path:
+                location: str | os.PathLike | None = None, envmap: str | os.PathLike | None = None) -> Path:
     """Write :func:`page_html` to ``folder/index.html`` (atomically) and return its path."""
     from ..results import atomic_write_text
 
     folder = Path(folder)
-    text = page_html(folder, sweeps, note, title, location)
+    text = page_html(folder, sweeps, note, title, location, envmap)
     path = folder / INDEX
     atomic_write_text(path, text)
     return path
