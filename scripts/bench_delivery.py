@@ -10,7 +10,8 @@ radiance), then, each its own process:
 
 * ``decode``: the baseline, every photograph of the delivery read in a loop with a plain decoder (``png.Reader``
   for PNG, ``OpenEXR.File`` for EXR; no resampling, no writing): what reading the delivery costs at the
-  decoder's speed;
+  decoder's speed; for PNG also the floor, the files' IDAT data only inflated (``zlib.decompress``), since
+  relight's own PNG reader (zlib + NumPy) is faster than pypng;
 * ``convert``: ``relight convert PHOTOS S.zarr --mesh head --resolution S`` (``relight.io.photos_to_texel_store``:
   a light chunk of photographs at a time into the texel store);
 * ``fit``: ``relight fit S.zarr --model ggx`` (block by block from the store; compile included);
@@ -28,6 +29,7 @@ its memory too is a chunk, not the delivery (3 x 346 x S^2 x 3 float32: 13 GiB a
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -39,6 +41,8 @@ from pathlib import Path
 from _common import FIG, ROOT, machine, parser
 
 STAGES = ("simulate", "decode", "convert", "fit", "render")
+# The 1-minute load average at the start and end of every stage (the machine may be shared; said in the table).
+_LOAD: list[float] = []
 _DECODE = {"exr": """
 import sys, time, json, OpenEXR
 files = sys.argv[1:]
@@ -49,13 +53,23 @@ for f in files:
             n += c.pixels.size
 print(json.dumps({"seconds": time.perf_counter() - t, "values": n}))
 """, "png": """
-import sys, time, json, png
+import sys, time, json, zlib, png
 files = sys.argv[1:]
 t = time.perf_counter(); n = 0
 for f in files:
-    w, h, rows, info = png.Reader(filename=f).read_flat()
+    w, h, rows, info = png.Reader(bytes=open(f, "rb").read()).read_flat()
     n += len(rows)
-print(json.dumps({"seconds": time.perf_counter() - t, "values": n}))
+seconds = time.perf_counter() - t
+t = time.perf_counter()
+for f in files:  # the floor: the IDAT chunks inflated, nothing else
+    data, i, idat = open(f, "rb").read(), 8, []
+    while i < len(data):
+        k = int.from_bytes(data[i:i + 4], "big")
+        if data[i + 4:i + 8] == b"IDAT":
+            idat.append(data[i + 8:i + 8 + k])
+        i += 12 + k
+    zlib.decompress(b"".join(idat))
+print(json.dumps({"seconds": seconds, "values": n, "inflate_seconds": time.perf_counter() - t}))
 """}
 
 
@@ -63,10 +77,12 @@ def _run(cmd: list[str], log: Path) -> tuple[float, float, str]:
     """Run ``cmd`` (cwd: the repository) with stdout and stderr into ``log``; (wall seconds, peak RSS MiB, its
     stdout's last line). A failing command stops the benchmark with the tail of its log."""
     t = time.perf_counter()
+    _LOAD.append(os.getloadavg()[0])
     with open(log, "w") as out:
         p = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
         _, status, usage = os.wait4(p.pid, 0)
     seconds = time.perf_counter() - t
+    _LOAD.append(os.getloadavg()[0])
     p.returncode = os.waitstatus_to_exitcode(status)
     text = log.read_text()
     if p.returncode:
@@ -95,6 +111,7 @@ def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
     photos, store, fit, render = (work / n for n in ("photos", f"{size}.zarr", "fit", "render"))
     rig = ["--rig", "lsx" if lights == 346 else f"dome:{lights}"]
     row = {"size": size, "texels": size * size}
+    _LOAD.clear()
     stages = {}
     stages["simulate"] = _run([*relight, "simulate", "--space", "image", *rig, "--camera", str(cams), "--noise",
                                "2000", "--read-noise", "2", "--format", fmt, "--out", str(photos), "--no-index",
@@ -114,10 +131,11 @@ def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
     row.update({f"{k}_peak_mib": round(v[1]) for k, v in stages.items()})
     clipped = json.loads((photos / "settings.json").read_text())["resolved"]["clipped_fraction"]
     row.update(format=fmt, observations=obs, photo_files=len(files), decode_values=int(decoded["values"]),
-               clipped_fraction=clipped,
+               clipped_fraction=clipped, inflate_s=round(decoded.get("inflate_seconds", float("nan")), 1),
                seen_texels=int(report["seen_samples"]),
                decode_obs_per_s=obs / stages["decode"][0], convert_obs_per_s=obs / stages["convert"][0],
-               fit_texels_per_s=report["seen_samples"] / stages["fit"][0])
+               fit_texels_per_s=report["seen_samples"] / stages["fit"][0],
+               load_average=round(sum(_LOAD) / len(_LOAD), 2), cores=os.cpu_count())
     return row
 
 
@@ -128,18 +146,21 @@ def _table(rows: list[dict], cmd: str) -> str:
              "at a time); decode: the photographs read by a plain decoder loop (the baseline); convert: `relight "
              "convert PHOTOS S.zarr --mesh head` (photographs to the texel store, a light chunk at a time); fit: "
              "`relight fit S.zarr --model ggx` over the texels a camera sees (compile included); render: "
-             "`relight render FIT`.", "",
+             "`relight render FIT`. Clipped: the delivery's values at full scale, over the seen pixels. Load "
+             "average: the machine's 1-minute load over the size's stages (above the core count, the wall times "
+             "are stretched by other work; the peaks are not).", "",
              "| size (px = texels) | simulate s | decode s | convert s (x decode) | fit s | render s | "
              "peak MiB: simulate / convert / fit / render | convert Mobs/s (decode) | fit texels/s | seen texels | "
-             "clipped |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "clipped | load average |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['size']}^2 | {r['simulate_s']} | {r['decode_s']} | {r['convert_s']} "
+            f"| {r['size']}^2 | {r['simulate_s']} | {r['decode_s']}{_inflate(r)} | {r['convert_s']} "
             f"({r['convert_s'] / max(r['decode_s'], 1e-9):.1f}x) | {r['fit_s']} | {r['render_s']} | "
             f"{r['simulate_peak_mib']} / {r['convert_peak_mib']} / {r['fit_peak_mib']} / {r['render_peak_mib']} | "
             f"{r['convert_obs_per_s'] / 1e6:.1f} ({r['decode_obs_per_s'] / 1e6:.1f}) | "
-            f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} | {100 * r['clipped_fraction']:.3f}% |")
+            f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} | {100 * r['clipped_fraction']:.3f}% | "
+            f"{r.get('load_average', '-')} on {r.get('cores', '-')} cores |")
     if len(rows) > 1:
         a, b = rows[0], rows[-1]
         lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: simulate "
@@ -149,6 +170,12 @@ def _table(rows: list[dict], cmd: str) -> str:
                       f"{b['render_peak_mib'] / a['render_peak_mib']:.2f}x (the capture grew "
                       f"{b['observations'] / a['observations']:.0f}x)."]
     return "\n".join(lines) + "\n"
+
+
+def _inflate(row: dict) -> str:
+    """" (inflate S)" where the row has the PNG floor's seconds."""
+    v = row.get("inflate_s")
+    return f" (inflate {v})" if isinstance(v, (int, float)) and math.isfinite(v) else ""
 
 
 def _write(path: Path, text: str) -> None:
@@ -166,9 +193,21 @@ def main(argv=None) -> None:
                     help="the photographs: 16-bit PNG counts (default) or float32 EXR radiance")
     ap.add_argument("--keep", type=Path, default=None, help="keep each size's files under this folder")
     ap.add_argument("--out", type=Path, default=FIG, help="where delivery.md / delivery.json go")
+    ap.add_argument("--append", action="store_true",
+                    help="keep the rows of other sizes already in OUT/delivery.json (the same rig and format): "
+                         "sizes run in separate invocations, one table")
     a = ap.parse_args(argv)
     sizes = [int(s) for s in a.sizes.split(",")]
-    rows = []
+    cmd = "python scripts/bench_delivery.py" + ("" if a.sizes == "256,512" else f" --sizes {a.sizes}") + (
+        "" if a.lights == 346 else f" --lights {a.lights}") + ("" if a.fmt == "png" else f" --format {a.fmt}")
+    rows, cmds = [], [cmd]
+    old = a.out / "delivery.json"
+    if a.append and old.is_file():
+        doc = json.loads(old.read_text())
+        rows = [r for r in doc["rows"] if r["size"] not in sizes and r.get("format") == a.fmt
+                and r["observations"] == 3 * a.lights * r["size"] ** 2]
+        cmds = [c for c in doc.get("commands", [doc.get("command")]) if c and c != cmd] + cmds
+    a.out.mkdir(parents=True, exist_ok=True)
     for size in sizes:
         work = Path(tempfile.mkdtemp(prefix=f"delivery{size}_")) if a.keep is None else a.keep / str(size)
         work.mkdir(parents=True, exist_ok=True)
@@ -178,13 +217,11 @@ def main(argv=None) -> None:
         finally:
             if a.keep is None:
                 shutil.rmtree(work, ignore_errors=True)
-    cmd = "python scripts/bench_delivery.py" + ("" if a.sizes == "256,512" else f" --sizes {a.sizes}") + (
-        "" if a.lights == 346 else f" --lights {a.lights}") + ("" if a.fmt == "png" else f" --format {a.fmt}")
-    a.out.mkdir(parents=True, exist_ok=True)
-    _write(a.out / "delivery.json", json.dumps({"machine": machine(), "command": cmd, "rows": rows}, indent=1))
-    _write(a.out / "delivery.md", _table(rows, cmd))
-    print(_table(rows, cmd))
-
+        rows.sort(key=lambda r: r["size"])
+        # Written after every size: a long run's finished sizes are kept if a later one is stopped.
+        _write(old, json.dumps({"machine": machine(), "commands": cmds, "rows": rows}, indent=1))
+        _write(a.out / "delivery.md", _table(rows, "`; `".join(cmds)))
+    print(_table(rows, "`; `".join(cmds)))
 
 if __name__ == "__main__":
     main()
