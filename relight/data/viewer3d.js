@@ -363,7 +363,7 @@ function controls(canvas) {
   var home = {yaw: S.yaw, pitch: S.pitch, dist: S.dist}, drag = null;
   canvas.addEventListener('pointerdown', function (e) {
     drag = {x: e.clientX, y: e.clientY};
-    canvas.setPointerCapture(e.pointerId);
+    try { canvas.setPointerCapture(e.pointerId); } catch (err) { /* a synthetic pointer (the self-test) */ }
   });
   canvas.addEventListener('pointermove', function (e) {
     if (!drag) { return; }
@@ -493,6 +493,33 @@ function spherePixels(tg, mat, env, rot) {
   return out;
 }
 
+// The controls driven as a user would (events on the canvas and the inputs): the state they set and whether
+// the picture changed; the state is put back after.
+function interact(tg) {
+  var c = gl.canvas, saved = Object.assign({}, S), out = {};
+  var first = frame(tg, {st: S});
+  var ev = function (type, x, y) {
+    c.dispatchEvent(new PointerEvent(type, {clientX: x, clientY: y, pointerId: 7, bubbles: true}));
+  };
+  ev('pointerdown', 100, 100); ev('pointermove', 150, 120); ev('pointerup', 150, 120);
+  c.dispatchEvent(new WheelEvent('wheel', {deltaY: 200, bubbles: true, cancelable: true}));
+  out.yaw = S.yaw - saved.yaw; out.pitch = S.pitch - saved.pitch; out.zoom = S.dist / saved.dist;
+  out.dragged = hash(frame(tg, {st: S})) !== hash(first);
+  var rot = document.getElementById('v3d-rot');
+  rot.value = '45'; rot.dispatchEvent(new Event('input'));
+  var sel = document.getElementById('v3d-map');
+  sel.value = '1'; sel.dispatchEvent(new Event('change'));
+  var err = document.querySelector('input[name="v3d-source"][value="error"]');
+  if (!err.disabled) { err.checked = true; err.dispatchEvent(new Event('change')); }
+  out.rot = S.rot; out.mode = S.mode; out.source = S.source;
+  c.dispatchEvent(new MouseEvent('dblclick', {bubbles: true}));
+  out.home = S.yaw === saved.yaw && S.pitch === saved.pitch && S.dist === saved.dist;
+  Object.assign(S, saved);
+  rot.value = String(S.rot); sel.value = String(S.mode);
+  document.querySelector('input[name="v3d-source"][value="fit"]').checked = true;
+  return out;
+}
+
 V.selftest = function () {
   var out = {webgl2: false};
   try {
@@ -526,6 +553,8 @@ V.selftest = function () {
       });
     });
     check('modes');
+    out.interaction = interact(tg);
+    check('interaction');
     out.float_target = V.floatTarget;
     var sz = 40, sp = target(sz, sz, V.floatTarget);
     var skin = {albedo: [0.5, 0.4, 0.3], f0: 0.04, alpha: 0.3, model: 2};

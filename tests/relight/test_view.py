@@ -104,6 +104,12 @@ def test_every_commands_page_loads_and_its_slider_moves_the_image(outputs, tmp_p
     assert len({m["fit/shaded"], m["truth/shaded"], m["error/shaded"]}) == 3
     if name == "demo":  # subsurface on both sides: the mean free path shows, and differs
         assert len({m["fit/mfp"], m["truth/mfp"], m["error/mfp"]}) == 3
+    # The controls, driven by events: a 50 x 20 px drag orbits by 0.01 rad a pixel, a wheel notch of 200 zooms
+    # out by exp(0.2), the slider, map selector and error switch set the state, a double click goes home.
+    it = v["interaction"]
+    assert it["yaw"] == pytest.approx(-0.5) and it["pitch"] == pytest.approx(0.2) and it["dragged"]
+    assert it["zoom"] == pytest.approx(np.exp(0.2)) and it["home"]
+    assert (it["rot"], it["mode"], it["source"]) == (45, 1, 2)
 
 
 @needs_chromium
