@@ -51,8 +51,9 @@ def shared_data():
 @pytest.fixture(autouse=True)
 def _small_index_pages(request, monkeypatch):
     """Every command still writes its index.html (inside its result set, listed in the manifest), but outside the
-    viewer's own tests with a 2-frame, 32 px rotation sweep: the page itself, at the commands' 12 frames, is tested
-    in tests/relight/test_view.py, and the full sweep in every CLI test would cost the suite minutes."""
+    viewer's own tests with a 2-frame, 32 px rotation sweep and no 3D view: the page itself, at the commands' 12
+    frames and with its 3D view, is tested in tests/relight/test_view.py, and the full page in every CLI test
+    would cost the suite minutes."""
     if request.module.__name__.rsplit(".", 1)[-1] == "test_view":
         return
     import importlib
@@ -61,6 +62,8 @@ def _small_index_pages(request, monkeypatch):
         module = importlib.import_module(f"relight.cli.{name}")
         monkeypatch.setattr(module, "INDEX_FRAMES", 2)
         monkeypatch.setattr(module, "INDEX_SIZE", 32)
+    # The 3D view's section too (its environment precomputation costs 5-10 s in a fresh process): tested there.
+    monkeypatch.setattr(importlib.import_module("relight.view._page"), "VIEW3D", False)
 
 
 # The demo both tests/relight/test_cli.py (its physics) and tests/relight/test_view.py (its index.html) check:
@@ -84,6 +87,7 @@ def demo_output(tmp_path_factory):
             with pytest.MonkeyPatch.context() as mp:  # the commands' own index page, whatever a test patched
                 mp.setattr(demo, "INDEX_FRAMES", _flags.INDEX_FRAMES)
                 mp.setattr(demo, "INDEX_SIZE", _flags.INDEX_SIZE)
+                mp.setattr(importlib.import_module("relight.view._page"), "VIEW3D", True)
                 assert main([*DEMO_ARGV, "--out", str(out)]) == 0
     return out
 

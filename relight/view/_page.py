@@ -39,6 +39,9 @@ from ._sweep import Sweep
 
 __all__ = ["INDEX", "MAX_EMBEDDED_BYTES", "data_uri", "page_html", "write_index"]
 
+# Whether a map set's page has the 3D view section (its environment precomputation costs seconds per process; the
+# suite's tests of other pages turn it off, as they shorten the sweeps: tests/conftest.py).
+VIEW3D = True
 INDEX = "index.html"
 # Images embedded besides the sweeps: at most this many bytes in all (a folder of large PNGs still gives a
 # page that opens at once; what is left out is listed by name).
@@ -381,7 +384,7 @@ def page_html(folder: str | os.PathLike, sweeps=(), note: str | None = None, tit
     if truth_dir is not None and fit_dir is not None:
         section("truth", "Truth | fit | error", _comparison_html(folder, truth_dir, fit_dir, location is not None))
     script3d = ""
-    if fit_dir is not None:  # the maps on the mesh in WebGL2 (relight/view/_page3d.py), at the sweeps' exposure
+    if fit_dir is not None and VIEW3D:  # the maps on the mesh in WebGL2 (_page3d.py), at the sweeps' exposure
         from ._page3d import view3d_html
 
         exposure = next((s.exposure for s in sweeps if np.isfinite(s.exposure)), None)
