@@ -98,14 +98,15 @@ def write_map_previews(folder: Path, albedo, specular, roughness) -> None:
 
 
 def write_index_page(folder: Path, sweeps, command: str, quiet: int | bool = 0, committed: bool = False,
-                     location: Path | None = None) -> tuple[Path, int]:
+                     location: Path | None = None, envmap: Path | str | None = None) -> tuple[Path, int]:
     """``folder/index.html``: ``relight.view.write_index`` with the rows and note ``sweeps()`` returns. A sweep
     that fails (ValueError, RuntimeError, OSError: an input that moved, a map it cannot read) leaves a page
     without a slider, saying why, and a warning on stderr: the page never fails the command. ``folder`` is a
     result set being built (the command's ``tmp``; ``location``: the folder it becomes), or, ``committed``, a
     finished folder: then it is locked while the page is written and, if it is a result set, its manifest
-    lists the new index.html (``relight.results.ResultSet.add``; ``relight view``). Returns (the page's path,
-    the number of sweeps)."""
+    lists the new index.html (``relight.results.ResultSet.add``; ``relight view``). ``envmap``: the 3D view's
+    environment map (None: the one the folder records, else the bundled one). Returns (the page's path, the
+    number of sweeps)."""
     import sys
 
     from ..results import FolderLock, is_result_set, open_result_set
@@ -121,7 +122,7 @@ def write_index_page(folder: Path, sweeps, command: str, quiet: int | bool = 0, 
             rows, note = [], f"no rotation slider: the sweep failed ({err})"
             if int(quiet or 0) < 2:
                 print(f"relight {command}: warning: index.html: {note}", file=sys.stderr)
-        return write_index(folder, rows, note, location=location), len(rows)
+        return write_index(folder, rows, note, location=location, envmap=envmap), len(rows)
 
     if not committed or not is_result_set(folder):
         with writing(folder / "index.html"):

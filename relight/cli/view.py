@@ -50,7 +50,8 @@ def run(args) -> int:
             return [], "no rotation slider (--frames 0)"
         return folder_sweeps(folder, args.envmap, frames=args.frames, size=args.size)
 
-    path, sweeps_made = write_index_page(folder, sweeps, "view", quiet=args.quiet, committed=True)
+    path, sweeps_made = write_index_page(folder, sweeps, "view", quiet=args.quiet, committed=True,
+                                         envmap=args.envmap)
     if summary(args):
         slider = f"{sweeps_made} sweep(s) of {args.frames} rotations" if sweeps_made else "no slider"
         print(f"wrote {path} ({slider}); open it in a browser: {path.resolve().as_uri()}")

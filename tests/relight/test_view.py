@@ -414,3 +414,21 @@ def test_view_constants_are_the_librarys():
     from relight.cli import view as view_cli
 
     assert (view_cli.FRAMES, view_cli.SIZE) == (view.DEFAULT_FRAMES, view.DEFAULT_SIZE)
+
+
+def test_relight_view_envmap_reaches_the_3d_view(outputs, tmp_path, monkeypatch, capsys):
+    """`relight view MAPS --envmap FILE` lights the 3D view by FILE too, not only the slider's sweep (the view's
+    environment is handed to relight.view._page3d.view3d_html; without --envmap, None: the folder's own)."""
+    import shutil
+
+    import relight.view._page3d as page3d
+    from relight.envmap import bundled_envmap_path
+
+    seen = []
+    monkeypatch.setattr(page3d, "view3d_html", lambda *a, **k: (seen.append(a[-1]), ("", ""))[1])
+    folder = tmp_path / "maps"
+    shutil.copytree(outputs / "maps", folder)
+    env = str(bundled_envmap_path())
+    for argv in ([], ["--envmap", env]):
+        assert main(["view", str(folder), "--frames", "2", "--size", "16", "-qq", *argv]) == 0
+    assert seen == [None, env]
