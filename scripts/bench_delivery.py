@@ -103,8 +103,12 @@ def _cameras(path: Path, size: int) -> None:
     stage.save_cameras(path, cams, names=["left", "front", "right"])
 
 
-def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
-    """Every stage at one size, in ``work``; the row of the table."""
+def bench_size(size: int, work: Path, lights: int, fmt: str, photos_dir: Path | None = None,
+               decode_sample: int = 0) -> dict:
+    """Every stage at one size, in ``work``; the row of the table. ``photos_dir``: a delivery of this size that
+    an earlier run simulated (not simulated again: its simulation time is the one its settings.json records,
+    its peak is not known); ``decode_sample`` > 0: the baseline decodes that many of the files, evenly spaced,
+    and its time is scaled to all of them."""
     relight = [sys.executable, "-c", "import sys; from relight.cli import main; sys.exit(main(sys.argv[1:]))"]
     cams = work / "cameras.json"
     _cameras(cams, size)
@@ -113,11 +117,21 @@ def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
     row = {"size": size, "texels": size * size}
     _LOAD.clear()
     stages = {}
-    stages["simulate"] = _run([*relight, "simulate", "--space", "image", *rig, "--camera", str(cams), "--noise",
-                               "2000", "--read-noise", "2", "--format", fmt, "--out", str(photos), "--no-index",
-                               "-q"], work / "simulate.log")
+    if photos_dir is None:
+        stages["simulate"] = _run([*relight, "simulate", "--space", "image", *rig, "--camera", str(cams),
+                                   "--noise", "2000", "--read-noise", "2", "--format", fmt, "--out", str(photos),
+                                   "--no-index", "-q"], work / "simulate.log")
+    else:
+        photos = photos_dir
+        took = json.loads((photos / "settings.json").read_text())["resolved"]["timings_s"]
+        stages["simulate"] = (sum(took.values()), float("nan"), "")
     files = sorted(str(p) for p in photos.rglob(f"l*.{fmt}"))
-    stages["decode"] = _run([sys.executable, "-c", _DECODE[fmt], *files], work / "decode.log")
+    step = max(1, -(-len(files) // decode_sample)) if decode_sample > 0 else 1
+    t, peak, last = _run([sys.executable, "-c", _DECODE[fmt], *files[::step]], work / "decode.log")
+    scale = len(files) / len(files[::step])
+    doc = json.loads(last)
+    last = json.dumps({k: v * scale if k != "values" else int(v * scale) for k, v in doc.items()})
+    stages["decode"] = (t * scale, peak, last)
     stages["convert"] = _run([*relight, "convert", str(photos), str(store), "--mesh", "head", "--resolution",
                               str(size), "--no-index", "-q"], work / "convert.log")
     stages["fit"] = _run([*relight, "fit", str(store), "--model", "ggx", "--out", str(fit), "--no-index", "-q"],
@@ -128,9 +142,10 @@ def bench_size(size: int, work: Path, lights: int, fmt: str) -> dict:
     obs = 3 * lights * size * size
     decoded = json.loads(stages["decode"][2])
     row.update({f"{k}_s": round(v[0], 1) for k, v in stages.items()})
-    row.update({f"{k}_peak_mib": round(v[1]) for k, v in stages.items()})
+    row.update({f"{k}_peak_mib": round(v[1]) if math.isfinite(v[1]) else None for k, v in stages.items()})
     clipped = json.loads((photos / "settings.json").read_text())["resolved"]["clipped_fraction"]
-    row.update(format=fmt, observations=obs, photo_files=len(files), decode_values=int(decoded["values"]),
+    row.update(decode_files_timed=len(files[::step]), format=fmt, observations=obs, photo_files=len(files),
+               decode_values=int(decoded["values"]),
                clipped_fraction=clipped, inflate_s=round(decoded.get("inflate_seconds", float("nan")), 1),
                seen_texels=int(report["seen_samples"]),
                decode_obs_per_s=obs / stages["decode"][0], convert_obs_per_s=obs / stages["convert"][0],
@@ -157,17 +172,15 @@ def _table(rows: list[dict], cmd: str) -> str:
         lines.append(
             f"| {r['size']}^2 | {r['simulate_s']} | {r['decode_s']}{_inflate(r)} | {r['convert_s']} "
             f"({r['convert_s'] / max(r['decode_s'], 1e-9):.1f}x) | {r['fit_s']} | {r['render_s']} | "
-            f"{r['simulate_peak_mib']} / {r['convert_peak_mib']} / {r['fit_peak_mib']} / {r['render_peak_mib']} | "
+            f"{' / '.join(str(r[f'{k}_peak_mib'] or '-') for k in STAGES if k != 'decode')} | "
             f"{r['convert_obs_per_s'] / 1e6:.1f} ({r['decode_obs_per_s'] / 1e6:.1f}) | "
             f"{r['fit_texels_per_s']:.0f} | {r['seen_texels']} | {100 * r['clipped_fraction']:.3f}% | "
             f"{r.get('load_average', '-')} on {r.get('cores', '-')} cores |")
     if len(rows) > 1:
         a, b = rows[0], rows[-1]
-        lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: simulate "
-                      f"{b['simulate_peak_mib'] / a['simulate_peak_mib']:.2f}x, convert "
-                      f"{b['convert_peak_mib'] / a['convert_peak_mib']:.2f}x, fit "
-                      f"{b['fit_peak_mib'] / a['fit_peak_mib']:.2f}x, render "
-                      f"{b['render_peak_mib'] / a['render_peak_mib']:.2f}x (the capture grew "
+        ratios = ", ".join(f"{k} {b[f'{k}_peak_mib'] / a[f'{k}_peak_mib']:.2f}x" for k in STAGES
+                           if k != "decode" and a[f"{k}_peak_mib"] and b[f"{k}_peak_mib"])
+        lines += ["", f"Peak memory at {b['size']}^2 over {a['size']}^2: {ratios} (the capture grew "
                       f"{b['observations'] / a['observations']:.0f}x)."]
     return "\n".join(lines) + "\n"
 
@@ -193,13 +206,19 @@ def main(argv=None) -> None:
                     help="the photographs: 16-bit PNG counts (default) or float32 EXR radiance")
     ap.add_argument("--keep", type=Path, default=None, help="keep each size's files under this folder")
     ap.add_argument("--out", type=Path, default=FIG, help="where delivery.md / delivery.json go")
+    ap.add_argument("--photos", type=Path, default=None,
+                    help="with one size: an existing delivery of that size to use instead of simulating one")
+    ap.add_argument("--decode-sample", type=int, default=0, metavar="N",
+                    help="time the decode baseline on N of the files, evenly spaced, scaled to all (0: all)")
     ap.add_argument("--append", action="store_true",
                     help="keep the rows of other sizes already in OUT/delivery.json (the same rig and format): "
                          "sizes run in separate invocations, one table")
     a = ap.parse_args(argv)
     sizes = [int(s) for s in a.sizes.split(",")]
     cmd = "python scripts/bench_delivery.py" + ("" if a.sizes == "256,512" else f" --sizes {a.sizes}") + (
-        "" if a.lights == 346 else f" --lights {a.lights}") + ("" if a.fmt == "png" else f" --format {a.fmt}")
+        "" if a.lights == 346 else f" --lights {a.lights}") + ("" if a.fmt == "png" else f" --format {a.fmt}") + (
+        "" if a.photos is None else f" --photos {a.photos}") + (
+        f" --decode-sample {a.decode_sample}" if a.decode_sample else "")
     rows, cmds = [], [cmd]
     old = a.out / "delivery.json"
     if a.append and old.is_file():
@@ -212,7 +231,7 @@ def main(argv=None) -> None:
         work = Path(tempfile.mkdtemp(prefix=f"delivery{size}_")) if a.keep is None else a.keep / str(size)
         work.mkdir(parents=True, exist_ok=True)
         try:
-            rows.append(bench_size(size, work, a.lights, a.fmt))
+            rows.append(bench_size(size, work, a.lights, a.fmt, a.photos, a.decode_sample))
             print(json.dumps(rows[-1]), flush=True)
         finally:
             if a.keep is None:
