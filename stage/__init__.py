@@ -42,6 +42,8 @@ from ._gradient import gradient_images as gradient_images
 from ._gradient import gradient_weights as gradient_weights
 from ._gradient import specular_normals as specular_normals
 from ._image import image_samples as image_samples
+from ._memory import peak_rss_mib as peak_rss_mib
+from ._memory import release_freed_memory as release_freed_memory
 from ._mesh import HEAD_SCALE_MM as HEAD_SCALE_MM
 from ._mesh import LENGTH_UNITS_MM as LENGTH_UNITS_MM
 from ._mesh import MAX_COORDINATE_MM as MAX_COORDINATE_MM

@@ -96,6 +96,31 @@ class Camera(eqx.Module):
         if self.orthographic and np.any(dist != 0):
             raise ValueError("Camera argument 'dist': an orthographic camera takes no lens distortion")
 
+    def crop(self, x0: int, y0: int, width: int, height: int) -> Camera:
+        """The window of this camera's image from pixel (``x0``, ``y0``) (column, row of its top-left corner),
+        ``width`` x ``height`` pixels, as a camera of its own: the same pose, lens and pixels, the principal
+        point moved by (-x0, -y0). A pixel (x, y) of the window is the pixel (x + x0, y + y0) of this image (the
+        distortion acts on normalised coordinates, which the shift does not change), so an image can be worked
+        on in bands of rows and the bands stacked.
+
+        Args:
+            x0, y0: the window's first column and row (integers, inside the image).
+            width, height: its size in pixels (>= 1, inside the image).
+
+        Returns:
+            The window's ``Camera``.
+        """
+        for name, v in (("x0", x0), ("y0", y0), ("width", width), ("height", height)):
+            if isinstance(v, bool) or int(v) != v:
+                raise ValueError(f"Camera.crop: {name} must be an integer, got {v!r}")
+        if not (0 <= x0 and 0 <= y0 and width >= 1 and height >= 1 and x0 + width <= self.width
+                and y0 + height <= self.height):
+            raise ValueError(f"Camera.crop: the window ({x0}, {y0}) + {width}x{height} leaves the "
+                             f"{self.width}x{self.height} image")
+        K = self.K.at[0, 2].add(-float(x0)).at[1, 2].add(-float(y0))
+        return Camera(K=K, R=self.R, t=self.t, width=int(width), height=int(height),
+                      orthographic=self.orthographic, dist=self.dist)
+
     @property
     def center(self) -> Float[Array, " 3"]:
         """Camera centre in world coordinates, -R^T t (for an orthographic camera,

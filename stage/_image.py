@@ -3,7 +3,7 @@ from the camera hits the mesh (the per-pixel counterpart of ``texel_samples``)."
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from brdf import frame_from_normal_tangent
@@ -82,7 +82,8 @@ def image_samples(mesh: Mesh, camera: Camera, supersample: int = 1) -> Surface:
         along = d @ fwd
     cos = np.maximum(np.abs(np.sum(d * ng, axis=1)), _GRAZING_COS_MIN)
     area = np.asarray(camera.pixel_area(p.astype(np.float32)), np.float64) / (s * s) * along / cos
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    # Cast on the host and device_put: jnp.asarray compiles a program for each sample count (kept by JAX's caches).
+    f32 = lambda x: jax.device_put(np.asarray(x, np.float32))  # noqa: E731
     return Surface(position=f32(p), normal=f32(nrm), tangent=f32(t), bitangent=f32(b), uv=f32(uv), area=f32(area),
-                   texel_index=jnp.asarray(idx, jnp.int32), face=jnp.asarray(f, jnp.int32), resolution=(h, w),
-                   barycentric=f32(lam))
+                   texel_index=jax.device_put(idx.astype(np.int32)), face=jax.device_put(f.astype(np.int32)),
+                   resolution=(h, w), barycentric=f32(lam))

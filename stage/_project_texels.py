@@ -13,6 +13,8 @@ from ._visibility import Occluder, camera_visibility
 
 # Rejection reasons of ``project_texels``, in the order they are applied (each counts samples still in the running).
 PROJECTION_REJECTIONS = ("behind_or_outside_image", "back_facing", "grazing", "outside_mask", "occluded")
+# Samples per block of ``project_texels``.
+_BLOCK = 1 << 17
 
 
 class TexelProjection(NamedTuple):
@@ -85,25 +87,30 @@ def project_texels(mesh: Mesh, surface: Surface, camera: Camera, *, mask=None, g
         raise ValueError(f"project_texels: grazing_deg must be in (0, 90], got {grazing_deg}")
     P = surface.num_samples
     H, W = (camera.height, camera.width) if mask is None else np.shape(mask)
-    pos = np.asarray(surface.position, np.float64)
-    nrm = np.asarray(surface.normal, np.float64)
-    pix, z = camera.project(pos)
-    pix, z = np.asarray(pix, np.float64), np.asarray(z, np.float64)
-    taps, w = bilinear_taps(pix, W, H)
-    cos_o = np.sum(np.asarray(camera.view_directions(pos), np.float64) * nrm, axis=1)
+    flat_mask = None if mask is None else np.asarray(mask, bool).reshape(-1)
     cos_graze = float(np.cos(np.deg2rad(grazing_deg)))
-    reasons = {}
-    cand = np.ones(P, bool)
-    for name, keep in (("behind_or_outside_image", (z > 0) & np.all(taps >= 0, axis=1)),
-                       ("back_facing", cos_o > 0),
-                       ("grazing", cos_o >= cos_graze)):
-        reasons[name] = int(np.sum(cand & ~keep))
-        cand &= keep
-    in_mask = cand.copy()
-    if mask is not None:
-        in_mask[cand] = np.all(np.asarray(mask, bool).reshape(-1)[taps[cand]], axis=1)
-    reasons["outside_mask"] = int(np.sum(cand & ~in_mask))
-    cand &= in_mask
+    taps, w = np.empty((P, 4), np.int64), np.empty((P, 4), np.float64)
+    cos_o, cand = np.empty(P, np.float64), np.empty(P, bool)
+    reasons = dict.fromkeys(PROJECTION_REJECTIONS[:-1], 0)
+    # In blocks of samples: the projection's float64 temporaries (~200 bytes a sample) stay one block's.
+    for s in range(0, P, _BLOCK):
+        e = min(s + _BLOCK, P)
+        pos = np.asarray(surface.position[s:e], np.float64)
+        pix, z = camera.project(pos)
+        taps[s:e], w[s:e] = bilinear_taps(np.asarray(pix, np.float64), W, H)
+        cos_o[s:e] = np.sum(np.asarray(camera.view_directions(pos), np.float64)
+                            * np.asarray(surface.normal[s:e], np.float64), axis=1)
+        c = np.ones(e - s, bool)
+        for name, keep in (("behind_or_outside_image", (np.asarray(z) > 0) & np.all(taps[s:e] >= 0, axis=1)),
+                           ("back_facing", cos_o[s:e] > 0),
+                           ("grazing", cos_o[s:e] >= cos_graze)):
+            reasons[name] += int(np.sum(c & ~keep))
+            c &= keep
+        in_mask = c.copy()
+        if flat_mask is not None:
+            in_mask[c] = np.all(flat_mask[taps[s:e][c]], axis=1)
+        reasons["outside_mask"] += int(np.sum(c & ~in_mask))
+        cand[s:e] = c & in_mask
     seen = camera_visibility(mesh, surface, [camera], occluder=occluder, candidates=cand)[0]
     reasons["occluded"] = int(np.sum(cand & ~seen))
     return TexelProjection(taps, w, cos_o, seen, reasons)

@@ -79,16 +79,17 @@ class Surface(eqx.Module):
             A ``Surface`` of the N samples, on the same texel grid.
         """
         index = np.asarray(index)
-        return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]), self)
+        # device_put, not jnp.asarray: the latter compiles (and JAX keeps) a program for each new shape.
+        return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[index]), self)
 
 
 # Candidate texels (the texels of the triangles' UV bounding boxes) generated and
 # tested per batch: ~25 float64 / int64 arrays over each, ~200 B a candidate, so
-# ~200 MiB a batch at 2^20 at most, however large the grid.
-_CANDIDATE_BATCH = 1 << 20
+# ~50 MiB a batch at 2^18 at most, however large the grid.
+_CANDIDATE_BATCH = 1 << 18
 # Samples interpolated per batch: the float64 temporaries of the interpolation
-# and the frame (~300 B a sample) for 2^18 samples at a time, ~75 MiB.
-_SAMPLE_BATCH = 1 << 18
+# and the frame (~300 B a sample) for 2^16 samples at a time, ~20 MiB.
+_SAMPLE_BATCH = 1 << 16
 
 
 def _texel_hits(tc, F, h: int, w: int, batch: int):
@@ -137,8 +138,8 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
 
     The first triangle wins where charts overlap. Position and normal are interpolated barycentrically; the tangent
     is dP/du of the triangle (Gram-Schmidt against the normal); the area is the triangle's world-to-UV area ratio
-    times the texel's UV area. Memory: the triangles' bounding-box texels are tested ``_CANDIDATE_BATCH`` (2^20) at
-    a time and the samples interpolated ``_SAMPLE_BATCH`` (2^18) at a time, so beyond the result (~70 B a sample)
+    times the texel's UV area. Memory: the triangles' bounding-box texels are tested ``_CANDIDATE_BATCH`` (2^18) at
+    a time and the samples interpolated ``_SAMPLE_BATCH`` (2^16) at a time, so beyond the result (~70 B a sample)
     and ~40 B per texel hit (kept to resolve overlaps) the temporaries are bounded by the batch sizes, not by the
     grid; the result does not depend on them.
 
@@ -190,6 +191,8 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
         out["uv"][r] = np.sum(UV[f] * lam, axis=1)
         out["barycentric"][r] = lam[:, :, 0]
         area[r] = ratio[fr] / (h * w)
-    return Surface(**{k: jnp.asarray(v) for k, v in out.items()}, area=jnp.asarray(area),
+    # Each field handed to JAX and its NumPy copy dropped in turn, so both copies of the whole set never coexist.
+    fields = {k: jnp.asarray(out.pop(k)) for k in list(out)}
+    return Surface(**fields, area=jnp.asarray(area),
                    texel_index=jnp.asarray(idx_unique, jnp.int32), face=jnp.asarray(tri, jnp.int32),
                    resolution=(int(h), int(w)))

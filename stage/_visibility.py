@@ -137,6 +137,10 @@ def offset_origin(mesh: Mesh, face, point, normal) -> np.ndarray:
     return np.asarray(point, np.float64) + eps[:, None] * normal
 
 
+# Samples per block of ``Occluder``'s construction.
+_OCCLUDER_BLOCK = 1 << 17
+
+
 class Occluder:
     """Occlusion queries against ``mesh`` from the samples of ``surface``.
 
@@ -170,12 +174,13 @@ class Occluder:
 
     Attributes (float64, mm): ``origin`` [P, 3], ``surface_origin`` [P, 3],
     ``normal`` [P, 3] (shading, interpolated), ``geometric_normal`` [P, 3];
-    and ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through
+    ``terminator`` (bool, as built); and ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through
     embreex where installed, else trimesh's numpy one).
     """
 
     def __init__(self, mesh: Mesh, surface: Surface | None = None, terminator: bool = True):
         tm = mesh.trimesh()
+        self.terminator = bool(terminator)
         if trimesh.ray.has_embree:
             self.intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
         else:  # pragma: no cover - the pure-numpy intersector is slow but correct
@@ -188,27 +193,36 @@ class Occluder:
         if face.shape != (self.normal.shape[0],) or (len(face) and (face.min() < 0 or face.max() >= len(mesh.faces))):
             raise ValueError(f"Occluder: surface.face must index the mesh's {len(mesh.faces)} faces "
                              "(a surface sampled from this mesh)")
-        pos = np.asarray(surface.position, np.float64)
+        P = len(face)
+        self.geometric_normal, self.surface_origin = np.empty((P, 3)), np.empty((P, 3))
+        self.origin = self.surface_origin if not terminator else np.empty((P, 3))
+        # In blocks of samples: the per-triangle gathers ([n, 3, 3] float64) stay one block's.
+        for s in range(0, P, _OCCLUDER_BLOCK):
+            r = slice(s, min(s + _OCCLUDER_BLOCK, P))
+            self._build(mesh, surface, face[r], r, terminator)
+
+    def _build(self, mesh: Mesh, surface: Surface, face: np.ndarray, r: slice, terminator: bool) -> None:
+        """The origins and geometric normals of samples ``r`` (their triangles ``face``)."""
+        pos = np.asarray(surface.position[r], np.float64)
         if surface.barycentric is None:
             tri = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)[face]]
             bary = trimesh.triangles.points_to_barycentric(tri, pos) if len(face) else np.zeros((0, 3))
         else:
-            bary = np.asarray(surface.barycentric, np.float64)
+            bary = np.asarray(surface.barycentric[r], np.float64)
         ng = face_normals(mesh, face)
         # The geometric normal on the shading normal's side (pbrt-v4's FaceForward of n_g to n_s).
-        ng = np.where(np.sum(ng * self.normal, axis=1, keepdims=True) < 0, -ng, ng)
-        self.geometric_normal = ng
-        self.surface_origin = offset_origin(mesh, face, pos, ng)
+        ng = np.where(np.sum(ng * self.normal[r], axis=1, keepdims=True) < 0, -ng, ng)
+        self.geometric_normal[r] = ng
+        self.surface_origin[r] = offset_origin(mesh, face, pos, ng)
         if not terminator:
-            self.origin = self.surface_origin
             return
         lifted = offset_origin(mesh, face, terminator_point(mesh, face, bary, pos), ng)
-        moved = np.flatnonzero(np.any(lifted != self.surface_origin, axis=1))
+        moved = np.flatnonzero(np.any(lifted != self.surface_origin[r], axis=1))
         if len(moved):
             # The lift (<= a few % of the triangle's size) must not cross another surface.
-            crossed = ~self.segments_clear(self.surface_origin[moved], lifted[moved])
-            lifted[moved[crossed]] = self.surface_origin[moved[crossed]]
-        self.origin = lifted
+            crossed = ~self.segments_clear(self.surface_origin[r][moved], lifted[moved])
+            lifted[moved[crossed]] = self.surface_origin[r][moved[crossed]]
+        self.origin[r] = lifted
 
     def visible(self, idx, dirs, active=None, distance=None) -> np.ndarray:
         """bool [n, k]: sample ``idx[i]`` sees along ``dirs[i, j]``.
@@ -237,7 +251,7 @@ class Occluder:
                 out[ii, jj] = self.segments_clear(o, o + d * np.asarray(distance, np.float64)[ii, jj, None])
         return out
 
-    def segments_clear(self, origins, targets, chunk: int = 1 << 20) -> np.ndarray:
+    def segments_clear(self, origins, targets, chunk: int = 1 << 18) -> np.ndarray:
         """bool [N]: the segment from ``origins[i]`` to ``targets[i]`` (both [N, 3],
         world, mm) meets no triangle. Rays are cast in blocks of ``chunk``."""
         origins = np.asarray(origins, np.float64)
@@ -257,7 +271,7 @@ class Occluder:
 
 
 def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 20, progress=None,
-                     packed: bool = False, terminator: bool = True):
+                     packed: bool = False, terminator: bool = True, occluder: Occluder | None = None):
     """bool [P, L]: sample p sees light l (cast shadows and self-shadowing; a
     light below the sample's tangent plane counts as not visible). With
     ``packed``, a ``PackedMask`` (8 lights per byte) instead, never holding the
@@ -265,8 +279,16 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
     bytes per ray); ``progress(phase, done, total)`` (``stage.Progress``) is
     told the (sample, light) pairs done, phase "light visibility", after each
     block. Every ray is cast by :class:`Occluder` (``terminator``: its
-    shadow-terminator origins, the default; False: from the flat facets)."""
-    occ = Occluder(mesh, surface, terminator)
+    shadow-terminator origins, the default; False: from the flat facets). ``occluder``: one already built for
+    ``mesh`` and ``surface`` (with terminator origins unless ``terminator`` is False), reused instead of building
+    another (its BVH and per-sample origins are ~100 bytes a sample)."""
+    occ = Occluder(mesh, surface, terminator) if occluder is None else occluder
+    if occ.terminator != bool(terminator):
+        raise ValueError(f"light_visibility: terminator={terminator} but the occluder was built with "
+                         f"terminator={occ.terminator}")
+    if occ.origin.shape[0] != surface.num_samples:
+        raise ValueError(f"light_visibility: the occluder holds {occ.origin.shape[0]} samples, the surface "
+                         f"{surface.num_samples}: build it for this surface")
     pos = np.asarray(rig.position, dtype=np.float64)
     P, L = occ.origin.shape[0], pos.shape[0]
     dirs = pos / np.linalg.norm(pos, axis=1, keepdims=True)
@@ -335,32 +357,36 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
         if candidates.shape != (P,) or candidates.dtype != bool:
             raise ValueError(f"camera_visibility: candidates must be bool [{P}], got {candidates.dtype} "
                              f"{candidates.shape}")
-    origins, n = occ.surface_origin, occ.normal
-    out = []
+    # Only the candidates are projected and cast, a block at a time (their float64 copies and the rays are what
+    # a call holds).
+    pick = np.arange(P) if candidates is None else np.flatnonzero(candidates)
     cameras = (cameras,) if isinstance(cameras, Camera) else tuple(cameras)
-    for cam in cameras:
-        pix, z = cam.project(surface.position)
-        pix, z = np.asarray(pix), np.asarray(z)
-        inside = (z > 0) & (pix[:, 0] >= 0) & (pix[:, 0] < cam.width) & (pix[:, 1] >= 0) & (pix[:, 1] < cam.height)
-        if cam.orthographic:
-            # Rays leave toward the image plane (camera z = 0) along -forward.
-            back = -np.asarray(cam.forward, np.float64)
-            targets = origins + back[None] * (z[:, None] + 1.0)
-        else:
-            targets = np.broadcast_to(np.asarray(cam.center, dtype=np.float64), origins.shape)
-        facing = np.sum((targets - origins) * n, axis=1) > 0
-        keep = inside & facing if candidates is None else inside & facing & candidates
-        cand = np.nonzero(keep)[0]
-        vis = np.zeros(len(origins), dtype=bool)
-        vis[cand] = occ.segments_clear(origins[cand], targets[cand])
-        out.append(vis)
-    return np.stack(out)
+    out = np.zeros((len(cameras), P), bool)
+    positions = np.asarray(surface.position)
+    for s in range(0, len(pick), _OCCLUDER_BLOCK):
+        idx = pick[s:s + _OCCLUDER_BLOCK]
+        origins, n, position = occ.surface_origin[idx], occ.normal[idx], positions[idx]
+        for v, cam in enumerate(cameras):
+            pix, z = cam.project(position)
+            pix, z = np.asarray(pix), np.asarray(z)
+            inside = (z > 0) & (pix[:, 0] >= 0) & (pix[:, 0] < cam.width) & (pix[:, 1] >= 0) & (pix[:, 1] < cam.height)
+            if cam.orthographic:
+                # Rays leave toward the image plane (camera z = 0) along -forward.
+                back = -np.asarray(cam.forward, np.float64)
+                targets = origins + back[None] * (z[:, None] + 1.0)
+            else:
+                targets = np.broadcast_to(np.asarray(cam.center, dtype=np.float64), origins.shape)
+            cand = np.nonzero(inside & (np.sum((targets - origins) * n, axis=1) > 0))[0]
+            out[v, idx[cand]] = occ.segments_clear(origins[cand], targets[cand])
+    return out
 
 
-def primary_hits(mesh: Mesh, camera: Camera, supersample: int = 1):
+def primary_hits(mesh: Mesh, camera: Camera, supersample: int = 1, occluder: Occluder | None = None):
     """Cast one ray per (sub)pixel from ``camera``: returns hit [H', W'] bool,
     face [H', W'] int (-1 on a miss), barycentrics [H', W', 3] and world
-    position [H', W', 3], where H' = supersample * height."""
+    position [H', W', 3], where H' = supersample * height. ``occluder``: an
+    ``Occluder(mesh)`` reused (its BVH) when called for many cameras or bands of
+    one (``Camera.crop``)."""
     s = int(supersample)
     if s < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
@@ -373,7 +399,8 @@ def primary_hits(mesh: Mesh, camera: Camera, supersample: int = 1):
         # The image plane may cut the mesh: start the rays well behind it.
         back = 2.0 * (np.abs(mesh.vertices).max() + np.abs(o).max())
         o = o - d * back
-    locs, ray_idx, tri_idx = Occluder(mesh).intersector.intersects_location(o, d, multiple_hits=False)
+    occ = Occluder(mesh) if occluder is None else occluder
+    locs, ray_idx, tri_idx = occ.intersector.intersects_location(o, d, multiple_hits=False)
     face = np.full(h * w, -1, np.int64)
     pos = np.zeros((h * w, 3))
     face[ray_idx] = tri_idx

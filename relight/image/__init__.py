@@ -11,6 +11,7 @@ from ._exposure import SUBJECT_PERCENTILE as SUBJECT_PERCENTILE
 from ._exposure import luminance as luminance
 from ._exposure import subject_exposure as subject_exposure
 from ._ops import resize_image as resize_image
+from ._preview import BAND_RAYS as BAND_RAYS
 from ._preview import PREVIEW_MIN_PX as PREVIEW_MIN_PX
 from ._preview import dilate as dilate
 from ._preview import sample_texture as sample_texture
@@ -23,7 +24,7 @@ from ._tonemap import to_uint8 as to_uint8
 from ._tonemap import to_uint16 as to_uint16
 from ._tonemap import tonemap as tonemap
 
-__all__ = ["CURVES", "PREVIEW_MIN_PX", "SUBJECT_KEY", "SUBJECT_PERCENTILE", "coverage_image",
+__all__ = ["BAND_RAYS", "CURVES", "PREVIEW_MIN_PX", "SUBJECT_KEY", "SUBJECT_PERCENTILE", "coverage_image",
            "dilate", "luminance", "psnr", "resize_image", "truth_fit_figure",
            "sample_texture", "srgb_decode", "srgb_encode", "subject_exposure", "texture_view", "to_uint8", "to_uint16",
            "tonemap", "upscale_nearest"]

@@ -7,6 +7,10 @@ import numpy as np
 
 import stage
 
+# Sub-pixel rays per band of a camera-view image (``texture_view``; ``relight.render.render_view``): a few hundred
+# bytes a ray, so tens of MiB a band, whatever the image size.
+BAND_RAYS = 1 << 18
+
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of a texture at uv coordinates (row 0 at v = 1).
@@ -43,13 +47,17 @@ def texture_view(mesh: stage.Mesh, camera: stage.Camera, textures: dict[str, np.
     Returns:
         ``name -> image`` [h, w, C] at the camera's resolution.
     """
-    hit, face, bary, _ = stage.primary_hits(mesh, camera, supersample)
-    uv = np.einsum("hwk,hwkc->hwc", bary, mesh.uv[mesh.faces[np.maximum(face, 0)]])
-    s = supersample
-    out = {}
-    for name, tex in textures.items():
-        img = np.where(hit[..., None], sample_texture(tex, uv), background)
-        out[name] = img.reshape(camera.height, s, camera.width, s, -1).mean(axis=(1, 3)).astype(np.float32)
+    s = int(supersample)
+    occ = stage.Occluder(mesh)
+    out = {name: np.empty((camera.height, camera.width, tex.shape[-1]), np.float32) for name, tex in textures.items()}
+    rows = max(1, BAND_RAYS // (camera.width * s * s))
+    for r0 in range(0, camera.height, rows):  # in bands of rows: the rays' arrays stay one band's
+        band = camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
+        hit, face, bary, _ = stage.primary_hits(mesh, band, s, occluder=occ)
+        uv = np.einsum("hwk,hwkc->hwc", bary, mesh.uv[mesh.faces[np.maximum(face, 0)]])
+        for name, tex in textures.items():
+            img = np.where(hit[..., None], sample_texture(tex, uv), background)
+            out[name][r0:r0 + band.height] = img.reshape(band.height, s, band.width, s, -1).mean(axis=(1, 3))
     return out
 
 

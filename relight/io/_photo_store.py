@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from typing import NamedTuple
 
 import numpy as np
 
@@ -23,6 +24,37 @@ from ._store import LIGHT_CHUNK, CaptureStoreWriter, default_chunks
 
 # Texels per write: the grid is written in runs of this many texels, so no [Lc, H * W, C] array is built.
 _WRITE_TEXELS = 1 << 18
+# Shadow rays per block of the light visibility (~100 bytes a ray).
+_RAY_CHUNK = 1 << 18
+# Photograph values (pixels x channels) read at once, as float32: 16 MiB, a light or two of a 1024^2 camera.
+_READ_VALUES = 1 << 22
+
+
+class _CameraTexels(NamedTuple):
+    """One camera's view of the texel grid, compact: the texels it sees ``idx`` [n] (in grid order), their grid
+    cells ``cells`` [n], bilinear ``taps`` int32 [n, 4] and ``weights`` float32 [n, 4], ``cos_o`` float32 [n] and
+    the projection's rejection counts."""
+
+    idx: np.ndarray
+    cells: np.ndarray
+    taps: np.ndarray
+    weights: np.ndarray
+    cos_o: np.ndarray
+    rejected: dict
+
+
+def _project(mesh, surface, photos: PhotoCapture, v: int, grid: np.ndarray, grazing_deg: float,
+             occluder) -> _CameraTexels:
+    """Camera ``v``'s :class:`_CameraTexels` (``stage.project_texels`` through its mask)."""
+    taps, w, cos_o, seen, reasons = stage.project_texels(mesh, surface, photos.cameras[v], mask=photos.read_mask(v),
+                                                         grazing_deg=grazing_deg, occluder=occluder)
+    idx = np.flatnonzero(seen)
+    idx = idx[np.argsort(grid[idx], kind="stable")]  # _write_grid wants the texels in grid order
+    out = _CameraTexels(idx, grid[idx], taps[idx].astype(np.int32), w[idx].astype(np.float32),
+                        cos_o[idx].astype(np.float32), reasons)
+    del taps, w, cos_o, seen
+    stage.release_freed_memory()
+    return out
 
 
 def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int],
@@ -73,45 +105,38 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
     H, W = surface.resolution
     N, P, V, L = H * W, surface.num_samples, photos.n_views, photos.n_lights
     grid = np.asarray(surface.texel_index, np.int64)  # texel p's place in the H x W grid
-    # Cast shadows, 1 bit per (texel, light); unpacked a light chunk at a time.
-    lit = None
     occluder = stage.Occluder(mesh, surface)  # one BVH for every camera
-
-    def project(v):
-        return stage.project_texels(mesh, surface, photos.cameras[v], mask=photos.read_mask(v),
-                                    grazing_deg=grazing_deg, occluder=occluder)
-
-    enough = None
-    if int(min_views) > 1:  # which texels enough cameras see, from the geometry alone, before any pixel is read
-        counts = np.zeros(P, np.int64)
-        for v in range(V):
-            counts += project(v)[3]
-        enough = counts >= int(min_views)
+    stage.release_freed_memory()  # the grid's and the occluder's temporaries: hundreds of bytes a texel
+    # The geometry of every camera first, so the occluder (~100 bytes a texel) is gone before any pixel is read.
+    views = [_project(mesh, surface, photos, v, grid, grazing_deg, occluder) for v in range(V)]
+    weight = np.zeros((V, P), np.float32)
+    for v, pv in enumerate(views):
+        weight[v, pv.idx] = pv.cos_o
+    enough = np.sum(weight > 0, axis=0) >= int(min_views) if int(min_views) > 1 else None
     C = photos.read_view(0, lights=[0]).radiance.shape[-1]
     lc = min(int(light_chunk), L)
     _, _, pc, _ = default_chunks((V, lc, N, C), np.float32)
     cameras = [stage.camera_to_dict(c, n) for c, n in zip(photos.cameras, photos.names, strict=True)]
     meta = {"space": "texel", "surface": {**dict(surface_info), "resolution": [int(H), int(W)]},
             "source": {"photo_capture": str(photos.folder)}}
-    weight = np.zeros((V, P), np.float32)
-    rejected, valid_frac = [], []
+    valid_frac = []
     of = {"photos": photo_fingerprint(photos), "mesh": _mesh_digest(mesh), "grazing_deg": float(grazing_deg),
           "min_views": int(min_views), "shadows": bool(shadows)}
     with CaptureStoreWriter(path, (V, L, N, C), np.float32, rig=photos.rig, cameras=cameras, metadata=meta,
                             chunks=(1, lc, pc, C), sample_shape=(H, W), partial=of, resume=resume) as writer:
         finished = {(int(e["view"]), int(e["light"])): int(e["valid"]) for e in writer.checkpoints
                     if writer.written(int(e["view"]), slice(int(e["light"]), min(int(e["light"]) + lc, L)))}
+        lit = None  # cast shadows, 1 bit per (texel, light); unpacked a light chunk at a time
         if shadows and len(finished) < V * -(-L // lc):
-            # Cast shadows, 1 bit per (texel, light); unpacked a light chunk at a time.
-            lit = stage.light_visibility(mesh, surface, photos.rig, packed=True, progress=progress)
+            lit = stage.light_visibility(mesh, surface, photos.rig, chunk=_RAY_CHUNK, packed=True, progress=progress,
+                                         occluder=occluder)
+        del occluder
+        stage.release_freed_memory()
         bar = stage.Phase(progress, "photos to texels", V * L)
-        for v in range(V):
-            taps, w, cos_o, seen, reasons = project(v)
-            idx = np.flatnonzero(seen)
-            weight[v, idx] = cos_o[idx]
-            rejected.append(reasons)
-            t, wt = taps[idx], w[idx]
-            keep = np.ones(len(idx), bool) if enough is None else enough[idx]
+        for v, pv in enumerate(views):
+            keep = np.ones(len(pv.idx), bool) if enough is None else enough[pv.idx]
+            cam = photos.cameras[v]
+            per_read = max(1, _READ_VALUES // max(1, cam.width * cam.height * C))
             n_valid = 0
             for l0 in range(0, L, lc):
                 l1 = min(l0 + lc, L)
@@ -119,24 +144,31 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                     n_valid += finished[v, l0]
                     bar.advance(l1 - l0)
                     continue
-                view = photos.read_view(v, lights=range(l0, l1))
-                if view.radiance.shape[-1] != C:
-                    raise ValueError(f"{photos.folder}: camera {view.name} has {view.radiance.shape[-1]} channels, "
-                                     f"camera {photos.names[0]} {C}")
-                rad, obs = sample_taps(view.radiance.reshape(l1 - l0, -1, C), view.valid.reshape(l1 - l0, -1), t,
-                                       wt)
-                del view
+                rad = np.empty((l1 - l0, len(pv.idx), C), np.float32)
+                obs = np.empty((l1 - l0, len(pv.idx)), bool)
+                for r0 in range(l0, l1, per_read):  # a few photographs at a time: ~_READ_VALUES floats
+                    r1 = min(r0 + per_read, l1)
+                    view = photos.read_view(v, lights=range(r0, r1))
+                    if view.radiance.shape[-1] != C:
+                        raise ValueError(f"{photos.folder}: camera {view.name} has {view.radiance.shape[-1]} "
+                                         f"channels, camera {photos.names[0]} {C}")
+                    rad[r0 - l0:r1 - l0], obs[r0 - l0:r1 - l0] = sample_taps(
+                        view.radiance.reshape(r1 - r0, -1, C), view.valid.reshape(r1 - r0, -1), pv.taps, pv.weights)
+                    del view
                 if lit is not None:
-                    obs &= lit.unpack(l0, l1)[idx].T
+                    obs &= lit.unpack(l0, l1)[pv.idx].T
                 n_obs = int(obs.sum())
                 n_valid += n_obs
                 obs &= keep[None]
-                _write_grid(writer, v, l0, l1, N, grid[idx], np.where(obs[..., None], rad, np.float32(0)), obs)
+                rad[~obs] = 0.0
+                _write_grid(writer, v, l0, l1, N, pv.cells, rad, obs)
+                del rad, obs
                 writer.checkpoint({"view": v, "light": l0, "valid": n_obs})
+                stage.release_freed_memory()  # the chunk's photographs and samples, tens of MiB at 1024^2
                 bar.advance(l1 - l0)
-            valid_frac.append(n_valid / (len(idx) * L) if len(idx) else 0.0)
-        report = PhotoTexelReport.of(surface, weight, rejected, valid_frac, photos.names, grazing_deg=grazing_deg,
-                                     min_views=min_views, shadows=shadows)
+            valid_frac.append(n_valid / (len(pv.idx) * L) if len(pv.idx) else 0.0)
+        report = PhotoTexelReport.of(surface, weight, [pv.rejected for pv in views], valid_frac, photos.names,
+                                     grazing_deg=grazing_deg, min_views=min_views, shadows=shadows)
         writer.add_metadata({"photos": report.to_dict()})
     return surface, report
 
@@ -167,9 +199,7 @@ def _mesh_digest(mesh: stage.Mesh) -> str:
 def _write_grid(writer: CaptureStoreWriter, v: int, l0: int, l1: int, n_grid: int, cells: np.ndarray,
                 rad: np.ndarray, obs: np.ndarray) -> None:
     """Write lights l0:l1 of view v over the whole grid of ``n_grid`` texels, in runs of ``_WRITE_TEXELS``:
-    ``rad`` [Lc, n, C] and ``obs`` [Lc, n] at grid cells ``cells`` (sorted), zero and invalid elsewhere."""
-    order = np.argsort(cells, kind="stable")
-    cells, rad, obs = cells[order], rad[:, order], obs[:, order]
+    ``rad`` [Lc, n, C] and ``obs`` [Lc, n] at grid cells ``cells`` (increasing), zero and invalid elsewhere."""
     for s in range(0, n_grid, _WRITE_TEXELS):
         e = min(s + _WRITE_TEXELS, n_grid)
         a, b = np.searchsorted(cells, [s, e])

@@ -92,13 +92,23 @@ def check_texel_arguments(where: str, grazing_deg: float, min_views: int) -> Non
         raise ValueError(f"{where}: min_views must be >= 1, got {min_views}")
 
 
+# Texels per gather in sample_taps: its [L, block, 4, C] temporary stays a few tens of MiB at any grid size.
+_TAP_BLOCK = 1 << 16
+
+
 def sample_taps(rad: np.ndarray, ok_px: np.ndarray, taps: np.ndarray, weights: np.ndarray):
     """Bilinear samples of images at texels: ``rad`` [L, H * W, C] and its validity ``ok_px`` [L, H * W], the
     texels' four pixel indices ``taps`` [n, 4] and bilinear ``weights`` [n, 4]. Returns radiance float32
     [L, n, C] and validity [L, n], valid only where all four taps are (no sample mixes in background or
-    clipped pixels)."""
-    return (np.einsum("lnkc,nk->lnc", rad[:, taps], weights.astype(np.float32)),
-            np.all(ok_px[:, taps], axis=2))
+    clipped pixels). Gathered ``_TAP_BLOCK`` texels at a time, so the taps' temporary does not grow with n."""
+    L, n, C = rad.shape[0], len(taps), rad.shape[-1]
+    out, ok = np.empty((L, n, C), np.float32), np.empty((L, n), bool)
+    w = weights.astype(np.float32)
+    for s in range(0, n, _TAP_BLOCK):
+        t = taps[s:s + _TAP_BLOCK]
+        np.einsum("lnkc,nk->lnc", rad[:, t], w[s:s + _TAP_BLOCK], out=out[:, s:s + _TAP_BLOCK])
+        np.all(ok_px[:, t], axis=2, out=ok[:, s:s + _TAP_BLOCK])
+    return out, ok
 
 
 def photos_to_texels(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int], *,

@@ -18,7 +18,7 @@ import numpy as np
 import stage
 
 from ..envmap._latlong import EnvMap, sample_latlong
-from ..image._preview import dilate, texture_view
+from ..image._preview import BAND_RAYS, dilate, texture_view
 
 __all__ = ["environment_behind", "pixel_coverage", "texel_fraction", "uncovered_fraction", "uncovered_pixels"]
 
@@ -50,8 +50,18 @@ def pixel_coverage(mesh: stage.Mesh, camera: stage.Camera, supersample: int = 2)
     """float32 [H, W] in [0, 1]: the fraction of each pixel's ``supersample``^2 primary rays that hit
     ``mesh`` (the alpha / coverage of a relit image)."""
     s = _check(mesh, camera, supersample)
-    hit = stage.primary_hits(mesh, camera, s)[0]
-    return _box(hit.astype(np.float32), camera, s).astype(np.float32)
+    occ = stage.Occluder(mesh)
+    out = np.empty((camera.height, camera.width), np.float32)
+    for r0, band in _bands(camera, s):
+        out[r0:r0 + band.height] = _box(stage.primary_hits(mesh, band, s, occluder=occ)[0].astype(np.float32), band, s)
+    return out
+
+
+def _bands(camera: stage.Camera, s: int):
+    """(first row, ``Camera.crop`` of the rows) for bands of at most ``BAND_RAYS`` sub-pixel rays."""
+    rows = max(1, BAND_RAYS // (camera.width * s * s))
+    for r0 in range(0, camera.height, rows):
+        yield r0, camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
 
 
 def environment_behind(env: EnvMap, mesh: stage.Mesh, camera: stage.Camera, rotation=None,
@@ -61,20 +71,26 @@ def environment_behind(env: EnvMap, mesh: stage.Mesh, camera: stage.Camera, rota
     environment (what ``render_view(..., background=True)`` returns). ``rotation`` [3, 3]: light from d
     arrives from R d (the renderers' convention), so a ray d sees the map at R^T d."""
     s = _check(mesh, camera, supersample)
-    hit = stage.primary_hits(mesh, camera, s)[0]
-    h, w = hit.shape
-    ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")
-    _, d = camera.rays(jnp.asarray(np.stack([xs, ys], -1).reshape(-1, 2)))
-    d = np.broadcast_to(np.asarray(d, np.float64), (h * w, 3))
+    rot = None
     if rotation is not None:
         rot = np.asarray(rotation, np.float64)
         if rot.shape != (3, 3):
             raise ValueError(f"rotation must be [3, 3], got shape {rot.shape}")
-        d = d @ rot  # row vectors: R^T d
     rad = jnp.asarray(env.radiance)
-    seen = np.asarray(sample_latlong(rad, jnp.asarray(d, rad.dtype)), np.float32).reshape(h, w, -1)
-    seen = np.where(hit[..., None], np.float32(0), seen)
-    return _box(seen, camera, s).astype(np.float32)
+    occ = stage.Occluder(mesh)
+    out = np.empty((camera.height, camera.width, rad.shape[-1]), np.float32)
+    for r0, band in _bands(camera, s):
+        hit = stage.primary_hits(mesh, band, s, occluder=occ)[0]
+        h, w = hit.shape
+        ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")
+        _, d = band.rays(jnp.asarray(np.stack([xs, ys], -1).reshape(-1, 2)))
+        d = np.broadcast_to(np.asarray(d, np.float64), (h * w, 3))
+        if rot is not None:
+            d = d @ rot  # row vectors: R^T d
+        seen = np.asarray(sample_latlong(rad, jnp.asarray(d, rad.dtype)), np.float32).reshape(h, w, -1)
+        seen = np.where(hit[..., None], np.float32(0), seen)
+        out[r0:r0 + band.height] = _box(seen, band, s)
+    return out
 
 
 def texel_fraction(mesh: stage.Mesh, camera: stage.Camera, texels, valid=None, supersample: int = 2) -> np.ndarray:

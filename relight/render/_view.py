@@ -29,7 +29,7 @@ import numpy as np
 import stage
 
 from ..envmap._latlong import EnvMap, rotation_matrix, sample_latlong
-from ..image._preview import dilate, sample_texture
+from ..image._preview import BAND_RAYS, dilate, sample_texture
 from ..materials._maps import SUBSURFACE, MaterialMaps
 from ._abstract import AbstractMethod
 from ._methods import _settings
@@ -52,6 +52,10 @@ class _View:
     uv: np.ndarray               # [P, 2]
     geo: Any = None              # the method's geometry of the pixel samples
 
+
+# A band's pixel samples are padded to a multiple of 1 / _BUCKETS of the band's sub-pixels: at most _BUCKETS
+# sample counts, so compiled programs, and at most 1 / _BUCKETS of the samples repeated.
+_BUCKETS = 8
 
 def _textures(maps: MaterialMaps, texel_surface: stage.Surface) -> dict[str, np.ndarray]:
     tex = {}
@@ -91,7 +95,10 @@ def _lookup_maps(tex: dict, uv: np.ndarray, surface: stage.Surface, dt) -> Mater
                         j(np.maximum(look["mfp"], 0)), jnp.asarray(model))
 
 
-def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt) -> _View:
+def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt, bucket: int | None = None) -> _View:
+    """The pixel samples of ``camera`` and their maps; ``bucket``: their count padded (the last sample repeated)
+    to a multiple of it, so bands of one image share their compiled programs instead of compiling (and keeping)
+    each operation anew for each band's count."""
     s = int(supersample)
     hit, face, bary, _ = stage.primary_hits(mesh, camera, s)
     h, w = hit.shape
@@ -101,6 +108,9 @@ def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt) -> 
     if not np.any(hit):
         return _View(None, None, hit, ray_dirs, None, None)
     surf = stage.image_samples(mesh, camera, s)
+    if bucket is not None:
+        n = surf.num_samples
+        surf = surf.take(np.minimum(np.arange(-(-n // bucket) * bucket), n - 1))
     uv = np.asarray(surf.uv, np.float64)
     maps = _lookup_maps(tex, uv, surf, dt)
     wo = camera.view_directions(jnp.asarray(surf.position, dt))
@@ -137,9 +147,9 @@ class _Renderer:
         self.tex_geo = None
         self.op = None
 
-    def view(self, camera, supersample) -> _View:
+    def view(self, camera, supersample, bucket: int | None = None) -> _View:
         self.progress("primary rays and maps")
-        v = _view(self.tex, self.mesh, camera, supersample, self.dt)
+        v = _view(self.tex, self.mesh, camera, supersample, self.dt, bucket)
         if v.surface is not None:
             self.progress("visibility")
             v.geo = self.method.geometry(self.lt, v.maps, v.surface, self.mesh, terminator=self.s["terminator"])
@@ -197,7 +207,9 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     shadows cast by ``mesh`` (the method's ``prepare``, ``geometry`` and ``shade``), box filter down
     to the camera's pixels. The subsurface exitance is computed on the texel samples and looked up
     per pixel. Visibility is per pixel sample: cost grows with (W H supersample^2) x directions for
-    the directional methods and x samples for ``Reference``.
+    the directional methods and x samples for ``Reference``; memory is one band's: an image of more than
+    ``relight.image.BAND_RAYS`` sub-pixel samples is rendered in bands of rows (``stage.Camera.crop``), the same
+    pixels (a ``Reference`` key is folded with the band's index).
 
     Args:
         maps: ``relight.MaterialMaps`` over ``texel_surface``.
@@ -220,9 +232,22 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
     r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)
     rotation = r.s["rotation"]
-    v = r.view(camera, supersample)
+    rows = max(1, BAND_RAYS // (camera.width * supersample * supersample))
+    if rows >= camera.height:
+        v = r.view(camera, supersample)
+        return r.image(v, camera, supersample, background, rotation, key, r.exitance_texture(rotation, key))
+    # In bands of rows (``stage.Camera.crop``): the pixel samples' surface, maps, visibility and shading are one
+    # band's, whatever the image size; the lighting and the texel-space exitance are shared.
     m_tex = r.exitance_texture(rotation, key)
-    return r.image(v, camera, supersample, background, rotation, key, m_tex)
+    out = np.empty((camera.height, camera.width, env.radiance.shape[-1]), np.float32)
+    for b, r0 in enumerate(range(0, camera.height, rows)):
+        band = camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
+        kb = None if key is None else jax.random.fold_in(key, b)  # independent Monte Carlo samples per band
+        v = r.view(band, supersample, bucket=max(1, rows * camera.width * supersample * supersample // _BUCKETS))
+        out[r0:r0 + band.height] = r.image(v, band, supersample, background, rotation, kb, m_tex)
+        del v
+        stage.release_freed_memory()  # the band's samples and rays, so the next band reuses the pages
+    return out
 
 
 def orbit_camera(camera: stage.Camera, angle: float, axis=(0.0, 1.0, 0.0)) -> stage.Camera:

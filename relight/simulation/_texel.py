@@ -30,7 +30,6 @@ from ..io import (
 from ..materials import GGX, SUBSURFACE, demo_material, material_maps
 from ..results import open_result_set
 from ._capture import MATERIAL, SSS_MATERIAL, UNITS, MeanFreePath, SimulatedCapture, noise_record
-from ._memory import mark
 
 __all__ = ["simulate_texel_capture"]
 
@@ -39,6 +38,13 @@ __all__ = ["simulate_texel_capture"]
 STORE_LIGHT_CHUNK, SUBSURFACE_STORE_LIGHT_CHUNK, FOLDER_LIGHT_CHUNK = 2 * LIGHT_CHUNK, LIGHT_CHUNK, 64
 # Texels per call of the camera visibility pass (stage.camera_visibility's chunk).
 CAMERA_CHUNK = 1 << 16
+
+
+def _mark() -> float | None:
+    """The peak resident set so far (MiB, ``stage.peak_rss_mib``), then ``stage.release_freed_memory``."""
+    peak = stage.peak_rss_mib()
+    stage.release_freed_memory()
+    return peak
 
 
 def _truth(surface, subsurface: MeanFreePath | None, progress):
@@ -137,7 +143,7 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
     cameras = tuple(cameras)
     t0 = time.perf_counter()
     grid = stage.texel_samples(mesh, resolution)
-    times, memory = {"geometry_s": time.perf_counter() - t0}, {"geometry": mark()}
+    times, memory = {"geometry_s": time.perf_counter() - t0}, {"geometry": _mark()}
     t0 = time.perf_counter()
     cam_vis = stage.camera_visibility(mesh, grid, cameras, chunk=CAMERA_CHUNK)
     seen = np.nonzero(np.any(cam_vis, axis=0))[0]
@@ -151,7 +157,7 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
         times["subsurface_operator_s"] = time.perf_counter() - t0
     (H, W), V, L, C = grid.resolution, len(cameras), rig.num_lights, 3
     del grid  # only the seen texels from here (the grid's surface is ~70 B a texel)
-    memory["camera_visibility"] = mark()
+    memory["camera_visibility"] = _mark()
     dtype = np.float16 if half else np.float32
     info = {**surface_info, "resolution": [H, W]}
     meta = {"space": "texel", "surface": info, "rig": rig_info,
@@ -171,10 +177,10 @@ def simulate_texel_capture(out: str | os.PathLike, mesh: stage.Mesh, resolution,
         done = stage.simulate_into(writer, mesh, surface, rig, cameras, truth, cam_vis, subsurface=sss,
                                    sensor=sensor, seed=seed, block=block, light_chunk=lc, progress=progress)
     times["visibility_s"], times["simulate_s"] = done.visibility_s, time.perf_counter() - t0 - done.visibility_s
-    memory["simulate"] = mark()
+    memory["simulate"] = _mark()
     t0 = time.perf_counter()
     _write_truth(out, mesh, cameras[0], surface, done.all_lights, maps, surface_info, record)
-    times["write_s"], memory["write"] = time.perf_counter() - t0, mark()
+    times["write_s"], memory["write"] = time.perf_counter() - t0, _mark()
     form = {"form": "store", "block_texels": done.block, "store_chunks": [1, LIGHT_CHUNK, int(pc), C],
             "blocks": done.blocks} if store else {}
     resolved = {"mesh": info, "rig": rig_info, "lights": L, "views": V, "samples_seen": int(len(seen)),

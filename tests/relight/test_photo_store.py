@@ -21,12 +21,16 @@ from relight.io import (
 from .test_photo_texels import RES, scene  # noqa: F401  (the module's fixture, built once here)
 
 
-def test_the_store_holds_what_photos_to_texels_gives(scene, tmp_path):  # noqa: F811
+def test_the_store_holds_what_photos_to_texels_gives(scene, tmp_path, monkeypatch):  # noqa: F811
     """Every texel's observations, validity and the report are those of the in-memory resampling, exactly
     (the same taps and weights; light chunks of 5, which do not divide the 162 lights; min_views 2, so the
     geometry pre-pass decides which texels count as seen); texels off the atlas hold nothing valid; the store's
     metadata rebuilds the surface, and a fit of the store equals the fit of the in-memory capture. (min_views
-    1 and the CLI: test_cli_convert_then_fit.)"""
+    1 and the CLI: test_cli_convert_then_fit.) The photographs are read two at a time (the read budget
+    forced down to two 56 px RGB images), which does not divide the chunk of 5 either."""
+    import relight.io._photo_store as photo_store
+
+    monkeypatch.setattr(photo_store, "_READ_VALUES", 2 * 56 * 56 * 3)
     min_views = 2
     mesh, _, _, _, masked, _ = scene
     photos = read_photo_capture(masked)
