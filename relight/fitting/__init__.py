@@ -58,6 +58,7 @@ from ._run import DILIGENT_MODEL as DILIGENT_MODEL
 from ._run import fit_diligent as fit_diligent
 from ._run import subsurface_step as subsurface_step
 from ._run import write_diligent_folder as write_diligent_folder
+from ._shadows import SHADOW_RATIO as SHADOW_RATIO
 from ._solvers import SOLVERS as SOLVERS
 from ._solvers import resolve_solver as resolve_solver
 from ._subsurface import fit_subsurface as fit_subsurface

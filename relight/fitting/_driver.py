@@ -53,6 +53,7 @@ from ._model import Layout
 from ._observations import _normalise, _obs_bucket, _observations_of
 from ._options import FitOptions, as_options
 from ._result import FIELDS, MAX_STEPS, MIN_OBSERVATIONS, Fit, fit_from_arrays, rig_alpha_floor
+from ._shadows import shadowed
 from ._solvers import _solve_chunk, _start_chunk, resolve_solver
 from ._sources import open_source, read_block
 
@@ -85,6 +86,7 @@ class _Plan:
     devices: int
     n_valid: np.ndarray | None = None
     n_keep: int | None = None
+    shadow_ratio: float | None = None
 
     def set_counts(self, n_valid) -> None:
         """Set the valid observations per sample [P] and the packed observation count they give (the
@@ -95,7 +97,8 @@ class _Plan:
 
 
 def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauchy, alpha_floor, holdout,
-          options: FitOptions, block: int | None = None, count: bool = True, where: str = "fit") -> _Plan:
+          options: FitOptions, shadow_ratio: float | None = None, block: int | None = None, count: bool = True,
+          where: str = "fit") -> _Plan:
     """Check ``fit``'s arguments and set the fit up (``block``: overrides ``options.block``;
     ``count=False``: the caller counts the valid observations, :meth:`_Plan.set_counts`).
     ValueError / TypeError naming the argument."""
@@ -109,6 +112,8 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
         raise ValueError(f"{where}: loss must be one of {LOSSES}, got {loss!r}")
     if loss == "cauchy" and not cauchy > 0:
         raise ValueError(f"{where}: the Cauchy scale must be > 0, got {cauchy}")
+    if shadow_ratio is not None and not 0 < shadow_ratio < 1:
+        raise ValueError(f"{where}: shadow_ratio must be None or in (0, 1), got {shadow_ratio!r}")
     if model == "auto" and holdout < 2:
         raise ValueError(f"{where}: holdout must be >= 2 (every holdout-th light is held out), got {holdout}")
     solver, solver_name = resolve_solver(solver, options.rtol, options.atol)
@@ -131,7 +136,8 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
     opts = dict(size=size, rounds=options.rounds, steps_per_round=options.steps_per_round, solver=solver,
                 put=_placer(devs), cauchy=float(cauchy) if loss == "cauchy" else None)
     plan = _Plan(source, rig, cameras, P, rungs, bool(normals), floor, int(holdout), solver_name, dt, block,
-                 int(options.chunk), opts, len(devs))
+                 int(options.chunk), opts, len(devs),
+                 shadow_ratio=None if shadow_ratio is None else float(shadow_ratio))
     if count:
         plan.set_counts(valid_counts(source, block))
     return plan
@@ -139,7 +145,7 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
 
 def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals: bool = False, solver="lm",
         loss: str = DEFAULT_LOSS, cauchy: float = 0.1, alpha_floor: float | None = None, holdout: int = 5,
-        options: FitOptions | None = None) -> Fit:
+        shadow_ratio: float | None = None, options: FitOptions | None = None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
     NaN never leaves: a sample with too few observations gets grey defaults, and one whose solve
@@ -179,6 +185,11 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
         alpha_floor: smallest roughness; default :func:`rig_alpha_floor`.
         holdout: for ``model="auto"``: every ``holdout``-th of each sample's observations, ranked
             from the mirror direction, is held out.
+        shadow_ratio: None (default) or a fraction in (0, 1) (``relight.fitting.SHADOW_RATIO`` = 0.5):
+            after the fit, every valid observation darker than this fraction of its prediction is taken
+            for a cast shadow the model does not have, censored (weight 0), and each sample is refitted
+            from its first fit. A sample left with fewer than ``MIN_OBSERVATIONS`` keeps them all.
+            ``Fit.rms`` is then over the kept observations (docs/fit.md, "How", item 4).
         options: how the fit runs (:class:`FitOptions`: chunk, block, rounds, steps, tolerances,
             devices, progress, on_block); None = the defaults.
 
@@ -189,7 +200,7 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
     """
     options = as_options(options)
     plan = _plan(capture, surface, model=model, normals=normals, solver=solver, loss=loss, cauchy=cauchy,
-                 alpha_floor=alpha_floor, holdout=holdout, options=options)
+                 alpha_floor=alpha_floor, holdout=holdout, shadow_ratio=shadow_ratio, options=options)
     P = plan.P
     kinds = {"f": plan.dt, "i": np.int32, "o": np.float32}
     out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in FIELDS.items()}
@@ -320,8 +331,34 @@ def _fit_block(plan: _Plan, surface: stage.Surface, b0: int, b1: int, phases: _P
                 moved = np.concatenate([old_sel, moved])
             fits[down] = (moved, new)
         fits = {k: v for k, v in fits.items() if len(v[0])}
+    if plan.shadow_ratio is not None:
+        fits = _refit_without_shadows(plan, data, fits, lay, phases)
     out = _assemble(fits, choice, n, plan.normals, plan.floor, dt, block_surface, opts["size"])
     return finish_block(out, plan.n_valid[b0:b1], block_surface, unit, heldout, choice, dt, MIN_OBSERVATIONS)
+
+
+def _refit_without_shadows(plan: _Plan, data, fits: dict, lay, phases: _Phases) -> dict:
+    """Each rung's samples with observations darker than ``plan.shadow_ratio`` x their prediction
+    (:func:`relight.fitting._shadows.shadowed`: cast shadows only darken, and a shadowed observation
+    reads the indirect light only) refitted without them, from a new start on the kept observations:
+    the first start (photometric stereo) saw the shadows too. A sample with none keeps its fit, which
+    the refit would repeat exactly (same start, same data)."""
+    w, zero, out = data[1], np.zeros_like(data[1]), {}
+    for k, (sel, r) in fits.items():
+        cut = shadowed(r["u"], lay(k), data, sel, plan.shadow_ratio, plan.opts["size"], MIN_OBSERVATIONS)
+        hit = np.any(cut, axis=1)
+        if not hit.any():
+            out[k] = (sel, r)
+            continue
+        w2 = w.copy()
+        w2[sel[hit]] = np.where(cut[hit][..., None], 0, w[sel[hit]])
+        bar = phases("fit (shadows censored)", None)  # how many samples have shadows is known only now
+        new = _fit_rung(data, w2, zero, sel[hit], lay(k), None, plan.opts, bar)
+        merged = {f: v.copy() for f, v in r.items()}
+        for f, v in new.items():
+            merged[f][hit] = v
+        out[k] = (sel, merged)
+    return out
 
 
 def _fit_rung(data, w, h, index, lay, u0, opts, bar):

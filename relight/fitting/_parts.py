@@ -73,6 +73,8 @@ def _settings(fit_kw: dict, block: int, ndev: int, dt) -> dict:
     for k, v in sorted(fit_kw.items()):
         if k in ("progress", "devices"):
             continue
+        if k == "shadow_ratio" and v is None:  # off, as before the keyword: earlier sets keep their fingerprint
+            continue
         if isinstance(v, (str, int, float, bool)) or v is None:
             out[k] = v
         else:  # a solver object: its repr without memory addresses (they differ from run to run)

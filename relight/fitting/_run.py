@@ -16,11 +16,13 @@ import skin_bssrdf
 from ._driver import DEFAULT_MODEL
 from ._joint import fit_with_subsurface
 from ._report import angular_error_deg
+from ._shadows import SHADOW_RATIO
 from ._subsurface import fit_subsurface
 
 # The model and loss a DiLiGenT object is fitted with unless told otherwise (scripts/eval_diligent.py's). Its
 # product is the normal, which the robust loss recovers better past unmasked cast shadows and interreflections
-# (docs/fit.md, "Defaults").
+# (docs/fit.md, "Defaults"); the cast shadows the loss still feels are censored before a second fit
+# (``shadow_ratio=SHADOW_RATIO``: the cat's folds; docs/fit.md, "How", item 4).
 DILIGENT_MODEL = "blinn_phong"
 DILIGENT_LOSS = "cauchy"
 
@@ -32,15 +34,16 @@ def fit_diligent(data, *, name: str | None = None, subsample: int = 1, **fit_kw)
         data: a ``relight.io.DiligentData`` (``relight.io.read_diligent``).
         name: the object's name for the report (its folder's name).
         subsample: fit every k-th pixel in x and y (1: all).
-        **fit_kw: :func:`relight.fit`'s keywords (``model`` defaults to ``DILIGENT_MODEL``; ``normals`` is
-            always fitted; ``options``, a :class:`relight.fitting.FitOptions`, for blocks, devices and
-            progress).
+        **fit_kw: :func:`relight.fit`'s keywords (``model`` defaults to ``DILIGENT_MODEL``, ``loss`` to
+            ``DILIGENT_LOSS``, ``shadow_ratio`` to ``relight.fitting.SHADOW_RATIO`` (None: no censoring);
+            ``normals`` is always fitted; ``options``, a :class:`relight.fitting.FitOptions`, for blocks,
+            devices and progress).
 
     Returns:
         ``(fit, surface, report)``: the :class:`relight.Fit`, the pixels' ``stage.Surface`` and the
-        report's ``diligent`` entry (object, pixels, lights, subsample and, where ``Normal_gt.mat`` is
-        present, ``normal_error_deg``: mean, median and 95th percentile of the angular error, and the
-        Lambertian least-squares baseline's mean and median).
+        report's ``diligent`` entry (object, pixels, lights, subsample, loss, shadow_ratio and, where
+        ``Normal_gt.mat`` is present, ``normal_error_deg``: mean, median and 95th percentile of the angular
+        error, and the Lambertian least-squares baseline's mean and median).
 
     References:
         Shi et al. 2016, "A Benchmark Dataset and Evaluation for Non-Lambertian and Uncalibrated
@@ -56,9 +59,11 @@ def fit_diligent(data, *, name: str | None = None, subsample: int = 1, **fit_kw)
         keep[::subsample, ::subsample] = True
         data = dataclasses.replace(data, mask=data.mask & keep)
     capture, surface = diligent_capture(data)
-    fitted = fit(capture, surface, **{"model": DILIGENT_MODEL, "loss": DILIGENT_LOSS, **fit_kw, "normals": True})
+    kw = {"model": DILIGENT_MODEL, "loss": DILIGENT_LOSS, "shadow_ratio": SHADOW_RATIO, **fit_kw, "normals": True}
+    fitted = fit(capture, surface, **kw)
     report = {"object": name, "pixels": int(surface.num_samples),
-              "lights": int(len(data.filenames)), "subsample": int(subsample)}
+              "lights": int(len(data.filenames)), "subsample": int(subsample),
+              "loss": kw["loss"], "shadow_ratio": kw["shadow_ratio"]}
     if data.normals_gt is not None:
         gt = data.normals_gt[data.mask].astype(np.float64)
         err = angular_error_deg(np.asarray(fitted.normal, np.float64), gt)
