@@ -82,8 +82,10 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
         path: the store to write (a ``.zarr`` folder; an existing store is replaced).
         surface_info: how to load ``mesh`` again (``relight.io.mesh_spec``), recorded for the fit.
         grazing_deg, min_views, shadows: as :func:`relight.io.photos_to_texels`.
-        light_chunk: lights per read of a camera's photographs, and the store's light chunk (peak memory is
-            about light_chunk x (image pixels + texels) x channels x 4 bytes).
+        light_chunk: the store's light chunk, the lights resampled before each write (peak memory: the texel
+            grid's geometry, ~75 bytes a texel, and each camera's taps, ~50 bytes a seen texel, plus light_chunk
+            x the texels a camera sees x channels x 4 bytes; the photographs are read ``_READ_VALUES`` values,
+            16 MiB as float32, at a time).
         resume: keep what a killed conversion of the same photographs into ``path`` with the same settings
             finished (else an earlier partial store is cleared).
         progress: ``stage.Progress``: "light visibility" (with ``shadows``), then "photos to texels" counting
