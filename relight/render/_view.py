@@ -57,6 +57,7 @@ class _View:
 # sample counts, so compiled programs, and at most 1 / _BUCKETS of the samples repeated.
 _BUCKETS = 8
 
+
 def _textures(maps: MaterialMaps, texel_surface: stage.Surface) -> dict[str, np.ndarray]:
     tex = {}
     valid = np.zeros(texel_surface.resolution, bool).ravel()
