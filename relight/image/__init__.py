@@ -14,6 +14,7 @@ from ._ops import resize_image as resize_image
 from ._preview import BAND_RAYS as BAND_RAYS
 from ._preview import PREVIEW_MIN_PX as PREVIEW_MIN_PX
 from ._preview import dilate as dilate
+from ._preview import row_bands as row_bands
 from ._preview import sample_texture as sample_texture
 from ._preview import texture_view as texture_view
 from ._preview import upscale_nearest as upscale_nearest
@@ -25,6 +26,6 @@ from ._tonemap import to_uint16 as to_uint16
 from ._tonemap import tonemap as tonemap
 
 __all__ = ["BAND_RAYS", "CURVES", "PREVIEW_MIN_PX", "SUBJECT_KEY", "SUBJECT_PERCENTILE", "coverage_image",
-           "dilate", "luminance", "psnr", "resize_image", "truth_fit_figure",
+           "dilate", "luminance", "psnr", "resize_image", "row_bands", "truth_fit_figure",
            "sample_texture", "srgb_decode", "srgb_encode", "subject_exposure", "texture_view", "to_uint8", "to_uint16",
            "tonemap", "upscale_nearest"]

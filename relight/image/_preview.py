@@ -12,6 +12,22 @@ import stage
 BAND_RAYS = 1 << 18
 
 
+def row_bands(camera: stage.Camera, supersample: int):
+    """The bands of rows a camera-view image is worked in, each of at most ``BAND_RAYS`` sub-pixel rays.
+
+    Args:
+        camera: the image's camera.
+        supersample: sub-pixels per pixel side.
+
+    Yields:
+        ``(first row, band camera)``: the band's ``Camera.crop`` (all columns, consecutive rows); one band
+        holding the whole image when it has at most ``BAND_RAYS`` sub-pixels.
+    """
+    rows = max(1, BAND_RAYS // (camera.width * supersample * supersample))
+    for r0 in range(0, camera.height, rows):
+        yield r0, camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
+
+
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of a texture at uv coordinates (row 0 at v = 1).
 
@@ -50,9 +66,7 @@ def texture_view(mesh: stage.Mesh, camera: stage.Camera, textures: dict[str, np.
     s = int(supersample)
     occ = stage.Occluder(mesh)
     out = {name: np.empty((camera.height, camera.width, tex.shape[-1]), np.float32) for name, tex in textures.items()}
-    rows = max(1, BAND_RAYS // (camera.width * s * s))
-    for r0 in range(0, camera.height, rows):  # in bands of rows: the rays' arrays stay one band's
-        band = camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
+    for r0, band in row_bands(camera, s):  # the rays' arrays stay one band's
         hit, face, bary, _ = stage.primary_hits(mesh, band, s, occluder=occ)
         uv = np.einsum("hwk,hwkc->hwc", bary, mesh.uv[mesh.faces[np.maximum(face, 0)]])
         for name, tex in textures.items():

@@ -18,7 +18,7 @@ import numpy as np
 import stage
 
 from ..envmap._latlong import EnvMap, sample_latlong
-from ..image._preview import BAND_RAYS, dilate, texture_view
+from ..image._preview import dilate, row_bands, texture_view
 
 __all__ = ["environment_behind", "pixel_coverage", "texel_fraction", "uncovered_fraction", "uncovered_pixels"]
 
@@ -52,16 +52,10 @@ def pixel_coverage(mesh: stage.Mesh, camera: stage.Camera, supersample: int = 2)
     s = _check(mesh, camera, supersample)
     occ = stage.Occluder(mesh)
     out = np.empty((camera.height, camera.width), np.float32)
-    for r0, band in _bands(camera, s):
+    for r0, band in row_bands(camera, s):
         out[r0:r0 + band.height] = _box(stage.primary_hits(mesh, band, s, occluder=occ)[0].astype(np.float32), band, s)
     return out
 
-
-def _bands(camera: stage.Camera, s: int):
-    """(first row, ``Camera.crop`` of the rows) for bands of at most ``BAND_RAYS`` sub-pixel rays."""
-    rows = max(1, BAND_RAYS // (camera.width * s * s))
-    for r0 in range(0, camera.height, rows):
-        yield r0, camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
 
 
 def environment_behind(env: EnvMap, mesh: stage.Mesh, camera: stage.Camera, rotation=None,
@@ -79,7 +73,7 @@ def environment_behind(env: EnvMap, mesh: stage.Mesh, camera: stage.Camera, rota
     rad = jnp.asarray(env.radiance)
     occ = stage.Occluder(mesh)
     out = np.empty((camera.height, camera.width, rad.shape[-1]), np.float32)
-    for r0, band in _bands(camera, s):
+    for r0, band in row_bands(camera, s):
         hit = stage.primary_hits(mesh, band, s, occluder=occ)[0]
         h, w = hit.shape
         ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")

@@ -29,7 +29,7 @@ import numpy as np
 import stage
 
 from ..envmap._latlong import EnvMap, rotation_matrix, sample_latlong
-from ..image._preview import BAND_RAYS, dilate, sample_texture
+from ..image._preview import dilate, row_bands, sample_texture
 from ..materials._maps import SUBSURFACE, MaterialMaps
 from ._abstract import AbstractMethod
 from ._methods import _settings
@@ -233,18 +233,18 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     _check_view_args(maps, texel_surface, mesh, camera, env, supersample)
     r = _Renderer(maps, texel_surface, mesh, env, method, settings, progress)
     rotation = r.s["rotation"]
-    rows = max(1, BAND_RAYS // (camera.width * supersample * supersample))
-    if rows >= camera.height:
+    bands = list(row_bands(camera, supersample))
+    if len(bands) == 1:
         v = r.view(camera, supersample)
         return r.image(v, camera, supersample, background, rotation, key, r.exitance_texture(rotation, key))
     # In bands of rows (``stage.Camera.crop``): the pixel samples' surface, maps, visibility and shading are one
     # band's, whatever the image size; the lighting and the texel-space exitance are shared.
     m_tex = r.exitance_texture(rotation, key)
     out = np.empty((camera.height, camera.width, env.radiance.shape[-1]), np.float32)
-    for b, r0 in enumerate(range(0, camera.height, rows)):
-        band = camera.crop(0, r0, camera.width, min(rows, camera.height - r0))
+    bucket = max(1, bands[0][1].height * camera.width * supersample * supersample // _BUCKETS)
+    for b, (r0, band) in enumerate(bands):
         kb = None if key is None else jax.random.fold_in(key, b)  # independent Monte Carlo samples per band
-        v = r.view(band, supersample, bucket=max(1, rows * camera.width * supersample * supersample // _BUCKETS))
+        v = r.view(band, supersample, bucket=bucket)
         out[r0:r0 + band.height] = r.image(v, band, supersample, background, rotation, kb, m_tex)
         del v
         stage.release_freed_memory()  # the band's samples and rays, so the next band reuses the pages

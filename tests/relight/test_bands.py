@@ -40,14 +40,14 @@ def test_crop_is_the_window_of_the_image():
 
 def test_render_view_in_bands_is_the_whole_image(monkeypatch):
     """Bands of 4 rows (padded sample counts, one key per band) against one band: the same pixels to 1e-5."""
-    import relight.render._view as view
+    import relight.image._preview as preview
     from relight.render import render_view
 
     mesh, _, maps, env, _ = small_render_scene(3)
     surf = stage.texel_samples(mesh, 8)
     _, cam = _camera((24, 20))
     whole = render_view(maps, surf, mesh, cam, env, method="dense", supersample=2)
-    monkeypatch.setattr(view, "BAND_RAYS", 4 * 24 * 4)
+    monkeypatch.setattr(preview, "BAND_RAYS", 4 * 24 * 4)
     banded = render_view(maps, surf, mesh, cam, env, method="dense", supersample=2)
     assert banded.shape == whole.shape == (20, 24, 3)
     assert np.all(np.isfinite(banded))
@@ -57,7 +57,6 @@ def test_render_view_in_bands_is_the_whole_image(monkeypatch):
 
 def test_coverage_and_texture_view_in_bands(monkeypatch):
     import relight.image._preview as preview
-    import relight.render._coverage as coverage
     from relight.envmap import EnvMap
     from relight.image import texture_view
     from relight.render import environment_behind, pixel_coverage, y_rotations
@@ -67,8 +66,7 @@ def test_coverage_and_texture_view_in_bands(monkeypatch):
     env = EnvMap(jnp.asarray(np.random.default_rng(1).uniform(0.1, 2.0, (8, 16, 3)), jnp.float32))
     rot = y_rotations([30.0])[0]
     whole = (pixel_coverage(mesh, cam), texture_view(mesh, cam, tex)["t"], environment_behind(env, mesh, cam, rot))
-    for mod in (preview, coverage):
-        monkeypatch.setattr(mod, "BAND_RAYS", 3 * 40 * 4)  # bands of 3 rows, the last one of 2
+    monkeypatch.setattr(preview, "BAND_RAYS", 3 * 40 * 4)  # bands of 3 rows, the last one of 2
     banded = (pixel_coverage(mesh, cam), texture_view(mesh, cam, tex)["t"], environment_behind(env, mesh, cam, rot))
     assert 0.05 < float(whole[0].mean()) < 0.95  # the sphere covers part of the image
     for a, b in zip(whole, banded, strict=True):
