@@ -191,8 +191,8 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
         out["uv"][r] = np.sum(UV[f] * lam, axis=1)
         out["barycentric"][r] = lam[:, :, 0]
         area[r] = ratio[fr] / (h * w)
-    # Each field handed to JAX and its NumPy copy dropped in turn, so both copies of the whole set never coexist.
-    fields = {k: jnp.asarray(out.pop(k)) for k in list(out)}
-    return Surface(**fields, area=jnp.asarray(area),
-                   texel_index=jnp.asarray(idx_unique, jnp.int32), face=jnp.asarray(tri, jnp.int32),
-                   resolution=(int(h), int(w)))
+    # Each field handed to JAX and its NumPy copy dropped in turn, so both copies of the whole set never coexist;
+    # by device_put: jnp.asarray compiles a program per new shape and held twice the array's bytes (measured).
+    fields = {k: jax.device_put(out.pop(k)) for k in list(out)}
+    return Surface(**fields, area=jax.device_put(area), texel_index=jax.device_put(idx_unique.astype(np.int32)),
+                   face=jax.device_put(tri.astype(np.int32)), resolution=(int(h), int(w)))

@@ -172,34 +172,63 @@ class Occluder:
     ``image_samples`` of this mesh); a ``surface.barycentric`` of None is
     recomputed from the positions.
 
-    Attributes (float64, mm): ``origin`` [P, 3], ``surface_origin`` [P, 3],
-    ``normal`` [P, 3] (shading, interpolated), ``geometric_normal`` [P, 3];
-    ``terminator`` (bool, as built); and ``intersector`` (trimesh's ``RayMeshIntersector``: Embree through
-    embreex where installed, else trimesh's numpy one).
+    Attributes (mm): ``origin`` [P, 3] and ``surface_origin`` [P, 3] (float64), ``normal`` [P, 3] (shading,
+    interpolated: ``surface.normal`` as it is, not copied; every use promotes it to float64, exactly);
+    ``geometric_normal`` [P, 3] (float64, computed when read: construction needs it a block at a time, and
+    nothing holds it, ~24 bytes a sample); ``terminator`` (bool, as built); and ``intersector`` (trimesh's
+    ``RayMeshIntersector``: Embree through embreex where installed, else trimesh's numpy one).
+
+    ``bvh``: an Occluder of the same mesh whose ray caster (BVH) is reused, so the samples of a large
+    surface can be taken a block at a time (an ``Occluder`` per block, one BVH) with the same answers.
     """
 
-    def __init__(self, mesh: Mesh, surface: Surface | None = None, terminator: bool = True):
-        tm = mesh.trimesh()
+    def __init__(self, mesh: Mesh, surface: Surface | None = None, terminator: bool = True, *,
+                 bvh: Occluder | None = None):
         self.terminator = bool(terminator)
-        if trimesh.ray.has_embree:
-            self.intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(tm)
+        if bvh is not None:
+            if bvh._mesh is not mesh and np.shape(bvh._mesh.faces) != np.shape(mesh.faces):
+                raise ValueError(f"Occluder: bvh was built for a mesh of {len(bvh._mesh.faces)} faces, this mesh "
+                                 f"has {len(mesh.faces)}")
+            self.intersector = bvh.intersector
+        elif trimesh.ray.has_embree:
+            self.intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(mesh.trimesh())
         else:  # pragma: no cover - the pure-numpy intersector is slow but correct
-            self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
+            self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(mesh.trimesh())
+        self._mesh, self._face = mesh, None
         if surface is None:
-            self.normal = self.origin = self.surface_origin = self.geometric_normal = np.zeros((0, 3))
+            self.normal = self.origin = self.surface_origin = np.zeros((0, 3))
             return
-        self.normal = np.asarray(surface.normal, np.float64)
+        self.normal = np.asarray(surface.normal)
         face = np.asarray(surface.face)
         if face.shape != (self.normal.shape[0],) or (len(face) and (face.min() < 0 or face.max() >= len(mesh.faces))):
             raise ValueError(f"Occluder: surface.face must index the mesh's {len(mesh.faces)} faces "
                              "(a surface sampled from this mesh)")
         P = len(face)
-        self.geometric_normal, self.surface_origin = np.empty((P, 3)), np.empty((P, 3))
+        self._face = face
+        self.surface_origin = np.empty((P, 3))
         self.origin = self.surface_origin if not terminator else np.empty((P, 3))
         # In blocks of samples: the per-triangle gathers ([n, 3, 3] float64) stay one block's.
         for s in range(0, P, _OCCLUDER_BLOCK):
             r = slice(s, min(s + _OCCLUDER_BLOCK, P))
             self._build(mesh, surface, face[r], r, terminator)
+
+    @property
+    def geometric_normal(self) -> np.ndarray:
+        """float64 [P, 3]: each sample's unit geometric normal (``face_normals``), on its shading normal's side
+        (pbrt-v4's FaceForward of n_g to n_s): the direction its origins were moved along."""
+        if self._face is None:
+            return np.zeros((0, 3))
+        out = np.empty((len(self._face), 3))
+        for s in range(0, len(self._face), _OCCLUDER_BLOCK):
+            r = slice(s, min(s + _OCCLUDER_BLOCK, len(self._face)))
+            out[r] = self._facing_normal(self._mesh, self._face[r], r)
+        return out
+
+    def _facing_normal(self, mesh: Mesh, face: np.ndarray, r: slice) -> np.ndarray:
+        """float64 [n, 3]: the geometric normals of samples ``r`` (their triangles ``face``), turned to the side
+        of their shading normals."""
+        ng = face_normals(mesh, face)
+        return np.where(np.sum(ng * self.normal[r], axis=1, keepdims=True) < 0, -ng, ng)
 
     def _build(self, mesh: Mesh, surface: Surface, face: np.ndarray, r: slice, terminator: bool) -> None:
         """The origins and geometric normals of samples ``r`` (their triangles ``face``)."""
@@ -209,10 +238,7 @@ class Occluder:
             bary = trimesh.triangles.points_to_barycentric(tri, pos) if len(face) else np.zeros((0, 3))
         else:
             bary = np.asarray(surface.barycentric[r], np.float64)
-        ng = face_normals(mesh, face)
-        # The geometric normal on the shading normal's side (pbrt-v4's FaceForward of n_g to n_s).
-        ng = np.where(np.sum(ng * self.normal[r], axis=1, keepdims=True) < 0, -ng, ng)
-        self.geometric_normal[r] = ng
+        ng = self._facing_normal(mesh, face, r)
         self.surface_origin[r] = offset_origin(mesh, face, pos, ng)
         if not terminator:
             return
@@ -315,6 +341,13 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
     return PackedMask(bits, L) if packed else vis
 
 
+def _padded(n: int) -> int:
+    """The length a block of ``n`` samples is padded to for a JAX call: the next power of two, at least 2^10
+    (so a stream of blocks of any lengths compiles at most a dozen sizes), at most ``_OCCLUDER_BLOCK`` (n is
+    never more)."""
+    return min(max(1 << 10, 1 << max(0, int(n) - 1).bit_length()), max(int(n), _OCCLUDER_BLOCK))
+
+
 def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera, *,
                       occluder: Occluder | None = None, candidates=None, chunk: int | None = None) -> np.ndarray:
     """bool [V, P]: sample p faces camera v, projects inside its image, and is not occluded.
@@ -365,10 +398,13 @@ def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tupl
     positions = np.asarray(surface.position)
     for s in range(0, len(pick), _OCCLUDER_BLOCK):
         idx = pick[s:s + _OCCLUDER_BLOCK]
-        origins, n, position = occ.surface_origin[idx], occ.normal[idx], positions[idx]
+        origins, n = occ.surface_origin[idx], occ.normal[idx]
+        # Projected in a few padded sizes: JAX compiles (and keeps) its eager operations for every new length, and
+        # the candidates of each call and block would be a new one.
+        position = positions[np.pad(idx, (0, _padded(len(idx)) - len(idx)), mode="edge")]  # idx is never empty
         for v, cam in enumerate(cameras):
             pix, z = cam.project(position)
-            pix, z = np.asarray(pix), np.asarray(z)
+            pix, z = np.asarray(pix)[:len(idx)], np.asarray(z)[:len(idx)]
             inside = (z > 0) & (pix[:, 0] >= 0) & (pix[:, 0] < cam.width) & (pix[:, 1] >= 0) & (pix[:, 1] < cam.height)
             if cam.orthographic:
                 # Rays leave toward the image plane (camera z = 0) along -forward.

@@ -5,7 +5,7 @@ in bounded memory, written as the chunked store (``.zarr``) that ``relight fit``
 camera's whole stack of photographs; one Light Stage X camera at 2048^2 is 346 x 4.2 M pixels x RGB, 17 GiB as
 float32. Here a camera's photographs are read a light chunk at a time and every chunk of texels is written as
 soon as it is complete, so memory is set by the chunk sizes (the light chunk's images and the texel grid's
-per-texel geometry), not by the number of lights.
+compact per-texel geometry, found a block of texels at a time), not by the number of lights.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from ._photos import PhotoCapture
 from ._store import LIGHT_CHUNK, CaptureStoreWriter, default_chunks
 
 # Texels per write: the grid is written in runs of this many texels, so no [Lc, H * W, C] array is built.
-_WRITE_TEXELS = 1 << 18
+_WRITE_TEXELS = 1 << 16
 # Shadow rays per block of the light visibility (~100 bytes a ray).
 _RAY_CHUNK = 1 << 18
 # Photograph values (pixels x channels) read at once, as float32: 16 MiB, a light or two of a 1024^2 camera.
@@ -31,30 +31,78 @@ _READ_VALUES = 1 << 22
 
 
 class _CameraTexels(NamedTuple):
-    """One camera's view of the texel grid, compact: the texels it sees ``idx`` [n] (in grid order), their grid
-    cells ``cells`` [n], bilinear ``taps`` int32 [n, 4] and ``weights`` float32 [n, 4], ``cos_o`` float32 [n] and
-    the projection's rejection counts."""
+    """One camera's view of the texel grid, compact (28 bytes a texel it sees): the texels it sees ``idx`` int32
+    [n] (in grid order), their grid cells ``cells`` int32 [n], the first of their bilinear taps ``tap`` int32 [n]
+    (the four are ``tap + (0, 1, width, width + 1)``: a seen texel's four taps all lie in the image) and their
+    weights ``weights`` float32 [n, 4], the image's ``width`` and the projection's rejection counts."""
 
     idx: np.ndarray
     cells: np.ndarray
-    taps: np.ndarray
+    tap: np.ndarray
     weights: np.ndarray
-    cos_o: np.ndarray
+    width: int
     rejected: dict
 
+    def taps(self, s: int = 0, e: int | None = None) -> np.ndarray:
+        """int32 [e - s, 4]: the four bilinear taps (flat pixel indices) of seen texels s:e."""
+        return self.tap[s:e, None] + np.array([0, 1, self.width, self.width + 1], np.int32)
 
-def _project(mesh, surface, photos: PhotoCapture, v: int, grid: np.ndarray, grazing_deg: float,
-             occluder) -> _CameraTexels:
-    """Camera ``v``'s :class:`_CameraTexels` (``stage.project_texels`` through its mask)."""
-    taps, w, cos_o, seen, reasons = stage.project_texels(mesh, surface, photos.cameras[v], mask=photos.read_mask(v),
-                                                         grazing_deg=grazing_deg, occluder=occluder)
-    idx = np.flatnonzero(seen)
-    idx = idx[np.argsort(grid[idx], kind="stable")]  # _write_grid wants the texels in grid order
-    out = _CameraTexels(idx, grid[idx], taps[idx].astype(np.int32), w[idx].astype(np.float32),
-                        cos_o[idx].astype(np.float32), reasons)
-    del taps, w, cos_o, seen
-    stage.release_freed_memory()
-    return out
+
+# Texels per block of the geometry (projections, occlusion, cast shadows): the block's float64 origins,
+# projections and rays (a few hundred bytes a texel) are what it holds beyond the compact results. A multiple of
+# stage's own projection block (2^17), so the projections are cut where the whole grid's are.
+_GEOMETRY_BLOCK = 1 << 17
+
+
+def _geometry(mesh, surface, photos: PhotoCapture, grazing_deg: float, shadows: bool, progress):
+    """Every camera's :class:`_CameraTexels`, their cos theta_o ``weight`` float32 [V, P] (0 where unseen) and,
+    with ``shadows``, the cast shadows (``stage.PackedMask`` [P, L]), computed ``_GEOMETRY_BLOCK`` texels at a
+    time: an ``Occluder`` per block on one BVH, so only the compact results are whole-grid (the answers are each
+    texel's own rays: the same as for the whole grid at once)."""
+    from stage._host import host_fields, host_subset
+
+    P, V, L = surface.num_samples, photos.n_views, photos.n_lights
+    fields = host_fields(surface)
+    grid = fields["texel_index"]
+    bvh = stage.Occluder(mesh)
+    masks = [photos.read_mask(v) for v in range(V)]
+    width = [int(np.shape(m)[1]) for m in masks]
+    parts = [[] for _ in range(V)]
+    rejected = [dict.fromkeys(stage.PROJECTION_REJECTIONS, 0) for _ in range(V)]
+    weight = np.zeros((V, P), np.float32)
+    bits = np.zeros((P, (L + 7) // 8), np.uint8) if shadows else None
+    report = None if progress is None else (lambda phase, done, total: progress(phase, base + done, P * L))
+    if shadows and progress is not None:
+        progress("light visibility", 0, P * L)
+    for s in range(0, P, _GEOMETRY_BLOCK):
+        e = min(s + _GEOMETRY_BLOCK, P)
+        block = host_subset(fields, surface.resolution, slice(s, e))
+        occ = stage.Occluder(mesh, block, bvh=bvh)
+        for v in range(V):
+            pr = stage.project_texels(mesh, block, photos.cameras[v], mask=masks[v], grazing_deg=grazing_deg,
+                                      occluder=occ)
+            seen = np.flatnonzero(pr.seen)
+            tap = pr.taps[seen, 0].astype(np.int32)
+            if not np.array_equal(pr.taps[seen], tap[:, None] + np.array([0, 1, width[v], width[v] + 1])):
+                raise AssertionError("photos_to_texel_store: a seen texel's bilinear taps are not a 2 x 2 square")
+            parts[v].append(((seen + s).astype(np.int32), tap, pr.weights[seen].astype(np.float32)))
+            weight[v, seen + s] = pr.cos_o[seen]
+            rejected[v] = {k: rejected[v][k] + int(n) for k, n in pr.rejected.items()}
+            del pr
+        if shadows:
+            base = s * L
+            bits[s:e] = stage.light_visibility(mesh, block, photos.rig, chunk=_RAY_CHUNK, packed=True,
+                                               progress=report, occluder=occ).bits
+        del block, occ
+        stage.release_freed_memory()  # the block's origins, projections and rays
+    views = []
+    for v in range(V):
+        idx, tap, w = (np.concatenate(x) for x in zip(*parts[v], strict=True))
+        parts[v] = None
+        order = np.argsort(grid[idx], kind="stable")  # _write_grid wants the texels in grid order
+        views.append(_CameraTexels(idx[order], grid[idx[order]].astype(np.int32), tap[order], w[order], width[v],
+                                   rejected[v]))
+    return views, weight, (stage.PackedMask(bits, L) if shadows else None)
 
 
 def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int],
@@ -82,10 +130,12 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
         path: the store to write (a ``.zarr`` folder; an existing store is replaced).
         surface_info: how to load ``mesh`` again (``relight.io.mesh_spec``), recorded for the fit.
         grazing_deg, min_views, shadows: as :func:`relight.io.photos_to_texels`.
-        light_chunk: the store's light chunk, the lights resampled before each write (peak memory: the texel
-            grid's geometry, ~75 bytes a texel, and each camera's taps, ~50 bytes a seen texel, plus light_chunk
-            x the texels a camera sees x channels x 4 bytes; the photographs are read ``_READ_VALUES`` values,
-            16 MiB as float32, at a time).
+        light_chunk: the store's light chunk, the lights resampled before each write (peak memory: while the
+            geometry is found, ``_GEOMETRY_BLOCK`` texels at a time, the texel surface, ~80 bytes a texel; then,
+            the surface dropped until the end, each camera's compact taps, 28 bytes a texel it sees, the cos
+            theta_o weights, 4 bytes a texel a camera, and the cast shadows, 1 bit a (texel, light), plus
+            light_chunk x the texels a camera sees x channels x 4 bytes; the photographs are read
+            ``_READ_VALUES`` values, 16 MiB as float32, at a time).
         resume: keep what a killed conversion of the same photographs into ``path`` with the same settings
             finished (else an earlier partial store is cleared).
         progress: ``stage.Progress``: "light visibility" (with ``shadows``), then "photos to texels" counting
@@ -105,16 +155,8 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
         raise ValueError(f"photos_to_texel_store: light_chunk must be an integer >= 1, got {light_chunk!r}")
     surface = stage.texel_samples(mesh, resolution)
     H, W = surface.resolution
-    N, P, V, L = H * W, surface.num_samples, photos.n_views, photos.n_lights
-    grid = np.asarray(surface.texel_index, np.int64)  # texel p's place in the H x W grid
-    occluder = stage.Occluder(mesh, surface)  # one BVH for every camera
-    stage.release_freed_memory()  # the grid's and the occluder's temporaries: hundreds of bytes a texel
-    # The geometry of every camera first, so the occluder (~100 bytes a texel) is gone before any pixel is read.
-    views = [_project(mesh, surface, photos, v, grid, grazing_deg, occluder) for v in range(V)]
-    weight = np.zeros((V, P), np.float32)
-    for v, pv in enumerate(views):
-        weight[v, pv.idx] = pv.cos_o
-    enough = np.sum(weight > 0, axis=0) >= int(min_views) if int(min_views) > 1 else None
+    N, V, L = H * W, photos.n_views, photos.n_lights
+    stage.release_freed_memory()  # the rasterisation's temporaries
     C = photos.read_view(0, lights=[0]).radiance.shape[-1]
     lc = min(int(light_chunk), L)
     _, _, pc, _ = default_chunks((V, lc, N, C), np.float32)
@@ -128,17 +170,21 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                             chunks=(1, lc, pc, C), sample_shape=(H, W), partial=of, resume=resume) as writer:
         finished = {(int(e["view"]), int(e["light"])): int(e["valid"]) for e in writer.checkpoints
                     if writer.written(int(e["view"]), slice(int(e["light"]), min(int(e["light"]) + lc, L)))}
-        lit = None  # cast shadows, 1 bit per (texel, light); unpacked a light chunk at a time
-        if shadows and len(finished) < V * -(-L // lc):
-            lit = stage.light_visibility(mesh, surface, photos.rig, chunk=_RAY_CHUNK, packed=True, progress=progress,
-                                         occluder=occluder)
-        del occluder
+        # The geometry of every camera first, a block of texels at a time, so no pixel is read while it is held;
+        # lit: the cast shadows, 1 bit per (texel, light), unpacked a light chunk at a time.
+        views, weight, lit = _geometry(mesh, surface, photos, grazing_deg,
+                                       shadows and len(finished) < V * -(-L // lc), progress)
+        # The surface (~80 bytes a texel) is not needed again until the end: dropped, and rasterised again there
+        # (the same surface: texel_samples is deterministic), so the photographs' phase never holds it.
+        del surface
         stage.release_freed_memory()
+        enough = np.sum(weight > 0, axis=0) >= int(min_views) if int(min_views) > 1 else None
         bar = stage.Phase(progress, "photos to texels", V * L)
         for v, pv in enumerate(views):
             keep = np.ones(len(pv.idx), bool) if enough is None else enough[pv.idx]
             cam = photos.cameras[v]
             per_read = max(1, _READ_VALUES // max(1, cam.width * cam.height * C))
+            taps = pv.taps()  # this camera's four taps a texel, int32 (16 bytes a texel it sees)
             n_valid = 0
             for l0 in range(0, L, lc):
                 l1 = min(l0 + lc, L)
@@ -155,7 +201,7 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                         raise ValueError(f"{photos.folder}: camera {view.name} has {view.radiance.shape[-1]} "
                                          f"channels, camera {photos.names[0]} {C}")
                     rad[r0 - l0:r1 - l0], obs[r0 - l0:r1 - l0] = sample_taps(
-                        view.radiance.reshape(r1 - r0, -1, C), view.valid.reshape(r1 - r0, -1), pv.taps, pv.weights)
+                        view.radiance.reshape(r1 - r0, -1, C), view.valid.reshape(r1 - r0, -1), taps, pv.weights)
                     del view
                 if lit is not None:
                     obs &= lit.unpack(l0, l1)[pv.idx].T
@@ -169,6 +215,11 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                 stage.release_freed_memory()  # the chunk's photographs and samples, tens of MiB at 1024^2
                 bar.advance(l1 - l0)
             valid_frac.append(n_valid / (len(pv.idx) * L) if len(pv.idx) else 0.0)
+            del taps
+            views[v] = pv._replace(idx=None, cells=None, tap=None, weights=None)  # done with: dropped
+        del lit, enough
+        stage.release_freed_memory()
+        surface = stage.texel_samples(mesh, resolution)
         report = PhotoTexelReport.of(surface, weight, [pv.rejected for pv in views], valid_frac, photos.names,
                                      grazing_deg=grazing_deg, min_views=min_views, shadows=shadows)
         writer.add_metadata({"photos": report.to_dict()})

@@ -1,0 +1,52 @@
+"""relight.io.photos_to_texel_store's geometry taken a block of texels at a time (issue 30: memory bounded by
+the block, not by the grid): the blocks give the whole grid's projections, taps, weights, rejections and cast
+shadows. A small capture: the bundled head on a 24 x 24 texel grid, two 24 x 20 px cameras, random
+photographs and masks, a 42-light dome."""
+
+import numpy as np
+
+import stage
+from relight.io import read_photo_capture, write_photo_capture
+
+
+def test_geometry_in_blocks_is_the_whole_grids(tmp_path, monkeypatch):
+    import relight.io._photo_store as ps
+
+    mesh = stage.load_head()
+    rig = stage.geodesic_dome(1)
+    v = np.asarray(mesh.vertices, np.float64)
+    cams = stage.camera_ring(2, 1300.0, target=tuple(0.5 * (v.min(0) + v.max(0))), fov_deg=20.0, width=24,
+                             height=20, start_deg=-30, arc_deg=60)
+    rng = np.random.default_rng(0)
+    images = [rng.uniform(0, 1, (rig.num_lights, 20, 24, 3)).astype(np.float32) for _ in cams]
+    masks = [rng.uniform(0, 1, (20, 24)) > 0.05 for _ in cams]
+    photos = read_photo_capture(write_photo_capture(tmp_path / "p", images, rig, cams, masks=masks))
+    surface = stage.texel_samples(mesh, 24)
+    P, L = surface.num_samples, rig.num_lights
+    views, weight, lit = ps._geometry(mesh, surface, photos, 80.0, True, None)  # one block: the whole grid
+    monkeypatch.setattr(ps, "_GEOMETRY_BLOCK", 37)  # blocks of 37 texels, the last one shorter
+    calls = []
+    b_views, b_weight, b_lit = ps._geometry(mesh, surface, photos, 80.0, True, lambda *a: calls.append(a))
+    assert P > 5 * 37
+    np.testing.assert_array_equal(b_lit.bits, lit.bits)
+    np.testing.assert_array_equal(np.asarray(lit), stage.light_visibility(mesh, surface, rig))
+    assert 0 < int(np.asarray(lit).sum()) < P * L  # some texels see some lights
+    # The projection is compiled per block length: the same arithmetic, vectorised differently (last bits).
+    np.testing.assert_allclose(b_weight, weight, rtol=1e-6, atol=0)
+    grid = np.asarray(surface.texel_index)
+    occ = stage.Occluder(mesh, surface)
+    for v, (a, b) in enumerate(zip(views, b_views, strict=True)):
+        ref = stage.project_texels(mesh, surface, cams[v], mask=masks[v], occluder=occ)
+        assert 0 < len(a.idx) < P and a.rejected == b.rejected == ref.rejected
+        for k in ("idx", "cells", "tap"):
+            np.testing.assert_array_equal(getattr(b, k), getattr(a, k), err_msg=k)
+        np.testing.assert_allclose(b.weights, a.weights, rtol=0, atol=1e-6)
+        # The texels each camera sees, in grid order, with their four taps and weights.
+        np.testing.assert_array_equal(np.sort(a.idx), np.flatnonzero(ref.seen))
+        assert np.all(np.diff(a.cells) > 0) and np.array_equal(a.cells, grid[a.idx])
+        np.testing.assert_array_equal(a.taps(), ref.taps[a.idx])
+        np.testing.assert_allclose(a.weights, ref.weights[a.idx], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(weight[v], np.where(ref.seen, ref.cos_o, 0.0), rtol=1e-6, atol=0)
+    # One "light visibility" count over the blocks: from 0, never back, to every (texel, light) pair.
+    done = [d for phase, d, total in calls if phase == "light visibility" and total == P * L]
+    assert len(done) == len(calls) and done[0] == 0 and done[-1] == P * L and np.all(np.diff(done) >= 0)
