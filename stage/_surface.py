@@ -130,7 +130,12 @@ def _texel_hits(tc, F, h: int, w: int, batch: int):
         parts.append((tri[inside], (py * w + px)[inside], l1[inside], l2[inside]))
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
-    return tuple(np.concatenate(x) for x in zip(*parts, strict=True))
+    # One field at a time, each batch's part dropped once copied: the hits are never held twice over.
+    out = []
+    for i in range(4):
+        out.append(np.concatenate([q[i] for q in parts]))
+        parts = [(*q[:i], None, *q[i + 1:]) for q in parts]
+    return tuple(out)
 
 
 def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surface:
@@ -191,8 +196,11 @@ def texel_samples(mesh: Mesh, resolution: int | tuple[int, int] = 256) -> Surfac
         out["uv"][r] = np.sum(UV[f] * lam, axis=1)
         out["barycentric"][r] = lam[:, :, 0]
         area[r] = ratio[fr] / (h * w)
+    del l1, l2
+    texel_index, face = idx_unique.astype(np.int32), tri.astype(np.int32)
+    del idx_unique, tri
     # Each field handed to JAX and its NumPy copy dropped in turn, so both copies of the whole set never coexist;
     # by device_put: jnp.asarray compiles a program per new shape and held twice the array's bytes (measured).
     fields = {k: jax.device_put(out.pop(k)) for k in list(out)}
-    return Surface(**fields, area=jax.device_put(area), texel_index=jax.device_put(idx_unique.astype(np.int32)),
-                   face=jax.device_put(tri.astype(np.int32)), resolution=(int(h), int(w)))
+    return Surface(**fields, area=jax.device_put(area), texel_index=jax.device_put(texel_index),
+                   face=jax.device_put(face), resolution=(int(h), int(w)))

@@ -26,6 +26,8 @@ from ._store import LIGHT_CHUNK, CaptureStoreWriter, default_chunks
 _WRITE_TEXELS = 1 << 16
 # Shadow rays per block of the light visibility (~100 bytes a ray).
 _RAY_CHUNK = 1 << 18
+# Texels sampled per call of sample_taps: their four taps (int32) and sample_taps' temporaries stay a block's.
+_TAP_TEXELS = 1 << 16
 # Photograph values (pixels x channels) read at once, as float32: 16 MiB, a light or two of a 1024^2 camera.
 _READ_VALUES = 1 << 22
 
@@ -54,15 +56,17 @@ class _CameraTexels(NamedTuple):
 _GEOMETRY_BLOCK = 1 << 17
 
 
-def _geometry(mesh, surface, photos: PhotoCapture, grazing_deg: float, shadows: bool, progress):
-    """Every camera's :class:`_CameraTexels`, their cos theta_o ``weight`` float32 [V, P] (0 where unseen) and,
-    with ``shadows``, the cast shadows (``stage.PackedMask`` [P, L]), computed ``_GEOMETRY_BLOCK`` texels at a
-    time: an ``Occluder`` per block on one BVH, so only the compact results are whole-grid (the answers are each
-    texel's own rays: the same as for the whole grid at once)."""
-    from stage._host import host_fields, host_subset
+# The texel surface's fields the geometry reads (44 of its 80 bytes a texel): the frame, uv and area are not.
+_GEOMETRY_FIELDS = ("position", "normal", "face", "barycentric", "texel_index")
 
-    P, V, L = surface.num_samples, photos.n_views, photos.n_lights
-    fields = host_fields(surface)
+
+def _geometry(mesh, fields: dict, resolution, photos: PhotoCapture, grazing_deg: float, shadows: bool, progress):
+    """Every camera's :class:`_CameraTexels`, their cos theta_o ``weight`` float32 [V, P] (0 where unseen) and,
+    with ``shadows``, the cast shadows (``stage.PackedMask`` [P, L]) of the texel surface whose
+    ``_GEOMETRY_FIELDS`` are ``fields`` (NumPy), computed ``_GEOMETRY_BLOCK`` texels at a time: an ``Occluder``
+    per block on one BVH, so only the compact results are whole-grid (the answers are each texel's own rays: the
+    same as for the whole grid at once)."""
+    P, V, L = len(fields["position"]), photos.n_views, photos.n_lights
     grid = fields["texel_index"]
     bvh = stage.Occluder(mesh)
     masks = [photos.read_mask(v) for v in range(V)]
@@ -76,7 +80,7 @@ def _geometry(mesh, surface, photos: PhotoCapture, grazing_deg: float, shadows: 
         progress("light visibility", 0, P * L)
     for s in range(0, P, _GEOMETRY_BLOCK):
         e = min(s + _GEOMETRY_BLOCK, P)
-        block = host_subset(fields, surface.resolution, slice(s, e))
+        block = _block_surface(fields, resolution, s, e)
         occ = stage.Occluder(mesh, block, bvh=bvh)
         for v in range(V):
             pr = stage.project_texels(mesh, block, photos.cameras[v], mask=masks[v], grazing_deg=grazing_deg,
@@ -103,6 +107,17 @@ def _geometry(mesh, surface, photos: PhotoCapture, grazing_deg: float, shadows: 
         views.append(_CameraTexels(idx[order], grid[idx[order]].astype(np.int32), tap[order], w[order], width[v],
                                    rejected[v]))
     return views, weight, (stage.PackedMask(bits, L) if shadows else None)
+
+
+def _block_surface(fields: dict, resolution, s: int, e: int) -> stage.Surface:
+    """Texels s:e of the surface held as ``fields`` (``_GEOMETRY_FIELDS``), as a ``stage.Surface`` whose
+    tangent, bitangent, uv and area, which the geometry does not read, are zero."""
+    import jax
+
+    put = {k: jax.device_put(fields[k][s:e]) for k in _GEOMETRY_FIELDS}
+    zero = np.zeros((e - s, 3), fields["position"].dtype)
+    return stage.Surface(**put, tangent=jax.device_put(zero), bitangent=jax.device_put(zero),
+                         uv=jax.device_put(zero[:, :2]), area=jax.device_put(zero[:, 0]), resolution=tuple(resolution))
 
 
 def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: int | tuple[int, int],
@@ -156,6 +171,10 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
     surface = stage.texel_samples(mesh, resolution)
     H, W = surface.resolution
     N, V, L = H * W, photos.n_views, photos.n_lights
+    # What the geometry reads (views of the surface's buffers); the rest of the surface (~36 bytes a texel) is not
+    # needed until the end, where it is rasterised again (the same surface: texel_samples is deterministic).
+    fields = {k: np.asarray(getattr(surface, k)) for k in _GEOMETRY_FIELDS}
+    del surface
     stage.release_freed_memory()  # the rasterisation's temporaries
     C = photos.read_view(0, lights=[0]).radiance.shape[-1]
     lc = min(int(light_chunk), L)
@@ -172,11 +191,9 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                     if writer.written(int(e["view"]), slice(int(e["light"]), min(int(e["light"]) + lc, L)))}
         # The geometry of every camera first, a block of texels at a time, so no pixel is read while it is held;
         # lit: the cast shadows, 1 bit per (texel, light), unpacked a light chunk at a time.
-        views, weight, lit = _geometry(mesh, surface, photos, grazing_deg,
+        views, weight, lit = _geometry(mesh, fields, (H, W), photos, grazing_deg,
                                        shadows and len(finished) < V * -(-L // lc), progress)
-        # The surface (~80 bytes a texel) is not needed again until the end: dropped, and rasterised again there
-        # (the same surface: texel_samples is deterministic), so the photographs' phase never holds it.
-        del surface
+        del fields  # the photographs' phase holds no surface
         stage.release_freed_memory()
         enough = np.sum(weight > 0, axis=0) >= int(min_views) if int(min_views) > 1 else None
         bar = stage.Phase(progress, "photos to texels", V * L)
@@ -184,7 +201,6 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
             keep = np.ones(len(pv.idx), bool) if enough is None else enough[pv.idx]
             cam = photos.cameras[v]
             per_read = max(1, _READ_VALUES // max(1, cam.width * cam.height * C))
-            taps = pv.taps()  # this camera's four taps a texel, int32 (16 bytes a texel it sees)
             n_valid = 0
             for l0 in range(0, L, lc):
                 l1 = min(l0 + lc, L)
@@ -200,9 +216,12 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                     if view.radiance.shape[-1] != C:
                         raise ValueError(f"{photos.folder}: camera {view.name} has {view.radiance.shape[-1]} "
                                          f"channels, camera {photos.names[0]} {C}")
-                    rad[r0 - l0:r1 - l0], obs[r0 - l0:r1 - l0] = sample_taps(
-                        view.radiance.reshape(r1 - r0, -1, C), view.valid.reshape(r1 - r0, -1), taps, pv.weights)
-                    del view
+                    img, ok_px = view.radiance.reshape(r1 - r0, -1, C), view.valid.reshape(r1 - r0, -1)
+                    for t0 in range(0, len(pv.idx), _TAP_TEXELS):  # the four taps made a block at a time
+                        t1 = min(t0 + _TAP_TEXELS, len(pv.idx))
+                        rad[r0 - l0:r1 - l0, t0:t1], obs[r0 - l0:r1 - l0, t0:t1] = sample_taps(
+                            img, ok_px, pv.taps(t0, t1), pv.weights[t0:t1])
+                    del view, img, ok_px
                 if lit is not None:
                     obs &= lit.unpack(l0, l1)[pv.idx].T
                 n_obs = int(obs.sum())
@@ -215,7 +234,6 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                 stage.release_freed_memory()  # the chunk's photographs and samples, tens of MiB at 1024^2
                 bar.advance(l1 - l0)
             valid_frac.append(n_valid / (len(pv.idx) * L) if len(pv.idx) else 0.0)
-            del taps
             views[v] = pv._replace(idx=None, cells=None, tap=None, weights=None)  # done with: dropped
         del lit, enough
         stage.release_freed_memory()

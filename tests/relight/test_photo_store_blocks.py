@@ -4,14 +4,14 @@ shadows. A small capture: the bundled head on a 24 x 24 texel grid, two 24 x 20 
 photographs and masks, a 42-light dome."""
 
 import numpy as np
+import pytest
 
 import stage
-from relight.io import read_photo_capture, write_photo_capture
+from relight.io import mesh_spec, open_capture_store, photos_to_texel_store, read_photo_capture, write_photo_capture
 
 
-def test_geometry_in_blocks_is_the_whole_grids(tmp_path, monkeypatch):
-    import relight.io._photo_store as ps
-
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
     mesh = stage.load_head()
     rig = stage.geodesic_dome(1)
     v = np.asarray(mesh.vertices, np.float64)
@@ -20,13 +20,25 @@ def test_geometry_in_blocks_is_the_whole_grids(tmp_path, monkeypatch):
     rng = np.random.default_rng(0)
     images = [rng.uniform(0, 1, (rig.num_lights, 20, 24, 3)).astype(np.float32) for _ in cams]
     masks = [rng.uniform(0, 1, (20, 24)) > 0.05 for _ in cams]
-    photos = read_photo_capture(write_photo_capture(tmp_path / "p", images, rig, cams, masks=masks))
+    folder = write_photo_capture(tmp_path_factory.mktemp("blocks") / "p", images, rig, cams, masks=masks)
+    return mesh, rig, cams, masks, read_photo_capture(folder)
+
+
+def test_geometry_in_blocks_is_the_whole_grids(small, monkeypatch):
+    import relight.io._photo_store as ps
+
+    mesh, rig, cams, masks, photos = small
     surface = stage.texel_samples(mesh, 24)
     P, L = surface.num_samples, rig.num_lights
-    views, weight, lit = ps._geometry(mesh, surface, photos, 80.0, True, None)  # one block: the whole grid
+    fields = {k: np.asarray(getattr(surface, k)) for k in ps._GEOMETRY_FIELDS}
+    block = ps._block_surface(fields, surface.resolution, 5, 9)
+    for k in ps._GEOMETRY_FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(block, k)), fields[k][5:9], err_msg=k)
+    views, weight, lit = ps._geometry(mesh, fields, surface.resolution, photos, 80.0, True, None)  # one block
     monkeypatch.setattr(ps, "_GEOMETRY_BLOCK", 37)  # blocks of 37 texels, the last one shorter
     calls = []
-    b_views, b_weight, b_lit = ps._geometry(mesh, surface, photos, 80.0, True, lambda *a: calls.append(a))
+    b_views, b_weight, b_lit = ps._geometry(mesh, fields, surface.resolution, photos, 80.0, True,
+                                            lambda *a: calls.append(a))
     assert P > 5 * 37
     np.testing.assert_array_equal(b_lit.bits, lit.bits)
     np.testing.assert_array_equal(np.asarray(lit), stage.light_visibility(mesh, surface, rig))
@@ -50,3 +62,27 @@ def test_geometry_in_blocks_is_the_whole_grids(tmp_path, monkeypatch):
     # One "light visibility" count over the blocks: from 0, never back, to every (texel, light) pair.
     done = [d for phase, d, total in calls if phase == "light visibility" and total == P * L]
     assert len(done) == len(calls) and done[0] == 0 and done[-1] == P * L and np.all(np.diff(done) >= 0)
+
+
+def test_a_store_converted_in_small_blocks_is_the_same(small, tmp_path, monkeypatch):
+    """The whole conversion with the geometry in blocks of 37 texels, the photographs sampled 7 texels at a
+    time and written in runs of 100 grid cells writes the store of the default blocks (one of each here), bit for
+    bit, and returns the same surface."""
+    import relight.io._photo_store as ps
+
+    mesh, _, _, _, photos = small
+    kw = {"surface_info": mesh_spec(None), "light_chunk": 16}
+    surf, report = photos_to_texel_store(photos, mesh, 24, tmp_path / "a.zarr", **kw)
+    monkeypatch.setattr(ps, "_GEOMETRY_BLOCK", 37)
+    monkeypatch.setattr(ps, "_TAP_TEXELS", 7)
+    monkeypatch.setattr(ps, "_WRITE_TEXELS", 100)
+    b_surf, b_report = photos_to_texel_store(photos, mesh, 24, tmp_path / "b.zarr", **kw)
+    a, b = open_capture_store(tmp_path / "a.zarr"), open_capture_store(tmp_path / "b.zarr")
+    ra, va = a.gather_samples(np.arange(24 * 24))
+    rb, vb = b.gather_samples(np.arange(24 * 24))
+    assert 0 < int(va.sum()) < va.size
+    np.testing.assert_array_equal(vb, va)
+    np.testing.assert_array_equal(rb, ra)
+    assert b_report.to_dict() == report.to_dict() and a.metadata["photos"] == b.metadata["photos"]
+    for k in ("position", "normal", "tangent", "uv", "area", "texel_index", "face"):
+        np.testing.assert_array_equal(np.asarray(getattr(b_surf, k)), np.asarray(getattr(surf, k)), err_msg=k)
