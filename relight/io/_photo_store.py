@@ -62,10 +62,11 @@ _GEOMETRY_FIELDS = ("position", "normal", "face", "barycentric", "texel_index")
 
 def _geometry(mesh, fields: dict, resolution, photos: PhotoCapture, grazing_deg: float, shadows: bool, progress):
     """Every camera's :class:`_CameraTexels`, their cos theta_o ``weight`` float32 [V, P] (0 where unseen) and,
-    with ``shadows``, the cast shadows (``stage.PackedMask`` [P, L]) of the texel surface whose
-    ``_GEOMETRY_FIELDS`` are ``fields`` (NumPy), computed ``_GEOMETRY_BLOCK`` texels at a time: an ``Occluder``
-    per block on one BVH, so only the compact results are whole-grid (the answers are each texel's own rays: the
-    same as for the whole grid at once)."""
+    with ``shadows``, the cast shadows of the texels some camera sees, ``(stage.PackedMask [n, L], their texel
+    indices int64 [n], increasing)`` (the others' are never read: no ray is cast for them), of the texel surface
+    whose ``_GEOMETRY_FIELDS`` are ``fields`` (NumPy), computed ``_GEOMETRY_BLOCK`` texels at a time: an
+    ``Occluder`` per block on one BVH, so only the compact results are whole-grid (the answers are each texel's
+    own rays: the same as for the whole grid at once)."""
     P, V, L = len(fields["position"]), photos.n_views, photos.n_lights
     grid = fields["texel_index"]
     bvh = stage.Occluder(mesh)
@@ -74,14 +75,16 @@ def _geometry(mesh, fields: dict, resolution, photos: PhotoCapture, grazing_deg:
     parts = [[] for _ in range(V)]
     rejected = [dict.fromkeys(stage.PROJECTION_REJECTIONS, 0) for _ in range(V)]
     weight = np.zeros((V, P), np.float32)
-    bits = np.zeros((P, (L + 7) // 8), np.uint8) if shadows else None
-    report = None if progress is None else (lambda phase, done, total: progress(phase, base + done, P * L))
-    if shadows and progress is not None:
-        progress("light visibility", 0, P * L)
+    lit_parts = []  # (texel indices, packed bits) of each block's texels that some camera sees
+    bar = stage.Phase(progress if shadows else None, "light visibility", P * L)  # counts the grid's pairs
+    report = None if progress is None else (lambda phase, done, total: progress(phase, bar.done + done, P * L))
     for s in range(0, P, _GEOMETRY_BLOCK):
         e = min(s + _GEOMETRY_BLOCK, P)
         block = _block_surface(fields, resolution, s, e)
-        occ = stage.Occluder(mesh, block, bvh=bvh)
+        # The cameras' rays leave from the triangles (surface_origin): no terminator origins, whose lift is
+        # checked by casting a ray, for texels no light ray leaves from.
+        occ = stage.Occluder(mesh, block, terminator=False, bvh=bvh)
+        any_seen = np.zeros(e - s, bool)
         for v in range(V):
             pr = stage.project_texels(mesh, block, photos.cameras[v], mask=masks[v], grazing_deg=grazing_deg,
                                       occluder=occ)
@@ -91,13 +94,18 @@ def _geometry(mesh, fields: dict, resolution, photos: PhotoCapture, grazing_deg:
                 raise AssertionError("photos_to_texel_store: a seen texel's bilinear taps are not a 2 x 2 square")
             parts[v].append(((seen + s).astype(np.int32), tap, pr.weights[seen].astype(np.float32)))
             weight[v, seen + s] = pr.cos_o[seen]
+            any_seen |= pr.seen
             rejected[v] = {k: rejected[v][k] + int(n) for k, n in pr.rejected.items()}
             del pr
-        if shadows:
-            base = s * L
-            bits[s:e] = stage.light_visibility(mesh, block, photos.rig, chunk=_RAY_CHUNK, packed=True,
-                                               progress=report, occluder=occ).bits
         del block, occ
+        sel = s + np.flatnonzero(any_seen)
+        if shadows and len(sel):
+            sub = _block_surface(fields, resolution, sel)
+            lit_parts.append((sel, stage.light_visibility(mesh, sub, photos.rig, chunk=_RAY_CHUNK, packed=True,
+                                                          progress=report, occluder=stage.Occluder(mesh, sub, bvh=bvh)
+                                                          ).bits))
+            del sub
+        bar.advance((e - s) * L)
         stage.release_freed_memory()  # the block's origins, projections and rays
     views = []
     for v in range(V):
@@ -106,16 +114,21 @@ def _geometry(mesh, fields: dict, resolution, photos: PhotoCapture, grazing_deg:
         order = np.argsort(grid[idx], kind="stable")  # _write_grid wants the texels in grid order
         views.append(_CameraTexels(idx[order], grid[idx[order]].astype(np.int32), tap[order], w[order], width[v],
                                    rejected[v]))
-    return views, weight, (stage.PackedMask(bits, L) if shadows else None)
+    if not shadows:
+        return views, weight, None
+    rows = np.concatenate([r for r, _ in lit_parts]) if lit_parts else np.zeros(0, np.int64)
+    bits = np.concatenate([b for _, b in lit_parts]) if lit_parts else np.zeros((0, (L + 7) // 8), np.uint8)
+    return views, weight, (stage.PackedMask(bits, L), rows)
 
 
-def _block_surface(fields: dict, resolution, s: int, e: int) -> stage.Surface:
-    """Texels s:e of the surface held as ``fields`` (``_GEOMETRY_FIELDS``), as a ``stage.Surface`` whose
-    tangent, bitangent, uv and area, which the geometry does not read, are zero."""
+def _block_surface(fields: dict, resolution, s, e: int | None = None) -> stage.Surface:
+    """Texels s:e (or the texels ``s``, an index array) of the surface held as ``fields`` (``_GEOMETRY_FIELDS``),
+    as a ``stage.Surface`` whose tangent, bitangent, uv and area, which the geometry does not read, are zero."""
     import jax
 
-    put = {k: jax.device_put(fields[k][s:e]) for k in _GEOMETRY_FIELDS}
-    zero = np.zeros((e - s, 3), fields["position"].dtype)
+    at = slice(s, e) if e is not None else s
+    put = {k: jax.device_put(fields[k][at]) for k in _GEOMETRY_FIELDS}
+    zero = np.zeros((len(put["position"]), 3), fields["position"].dtype)
     return stage.Surface(**put, tangent=jax.device_put(zero), bitangent=jax.device_put(zero),
                          uv=jax.device_put(zero[:, :2]), area=jax.device_put(zero[:, 0]), resolution=tuple(resolution))
 
@@ -146,8 +159,9 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
         surface_info: how to load ``mesh`` again (``relight.io.mesh_spec``), recorded for the fit.
         grazing_deg, min_views, shadows: as :func:`relight.io.photos_to_texels`.
         light_chunk: the store's light chunk, the lights resampled before each write (peak memory: while the
-            geometry is found, ``_GEOMETRY_BLOCK`` texels at a time, the texel surface, ~80 bytes a texel; then,
-            the surface dropped until the end, each camera's compact taps, 28 bytes a texel it sees, the cos
+            geometry is found, ``_GEOMETRY_BLOCK`` texels at a time, the surface fields it reads, 44 bytes a
+            texel; then, no surface until the end, where it is rasterised again (~80 bytes a texel, returned), and
+            the geometry's compact results: each camera's taps, 28 bytes a texel it sees, the cos
             theta_o weights, 4 bytes a texel a camera, and the cast shadows, 1 bit a (texel, light), plus
             light_chunk x the texels a camera sees x channels x 4 bytes; the photographs are read
             ``_READ_VALUES`` values, 16 MiB as float32, at a time).
@@ -190,7 +204,7 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
         finished = {(int(e["view"]), int(e["light"])): int(e["valid"]) for e in writer.checkpoints
                     if writer.written(int(e["view"]), slice(int(e["light"]), min(int(e["light"]) + lc, L)))}
         # The geometry of every camera first, a block of texels at a time, so no pixel is read while it is held;
-        # lit: the cast shadows, 1 bit per (texel, light), unpacked a light chunk at a time.
+        # lit: the cast shadows, 1 bit per (texel some camera sees, light), unpacked a light chunk at a time.
         views, weight, lit = _geometry(mesh, fields, (H, W), photos, grazing_deg,
                                        shadows and len(finished) < V * -(-L // lc), progress)
         del fields  # the photographs' phase holds no surface
@@ -201,6 +215,7 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
             keep = np.ones(len(pv.idx), bool) if enough is None else enough[pv.idx]
             cam = photos.cameras[v]
             per_read = max(1, _READ_VALUES // max(1, cam.width * cam.height * C))
+            lit_row = None if lit is None else np.searchsorted(lit[1], pv.idx)  # the camera's texels' rows of lit
             n_valid = 0
             for l0 in range(0, L, lc):
                 l1 = min(l0 + lc, L)
@@ -223,7 +238,7 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                             img, ok_px, pv.taps(t0, t1), pv.weights[t0:t1])
                     del view, img, ok_px
                 if lit is not None:
-                    obs &= lit.unpack(l0, l1)[pv.idx].T
+                    obs &= lit[0].unpack(l0, l1)[lit_row].T
                 n_obs = int(obs.sum())
                 n_valid += n_obs
                 obs &= keep[None]
@@ -234,6 +249,7 @@ def photos_to_texel_store(photos: PhotoCapture, mesh: stage.Mesh, resolution: in
                 stage.release_freed_memory()  # the chunk's photographs and samples, tens of MiB at 1024^2
                 bar.advance(l1 - l0)
             valid_frac.append(n_valid / (len(pv.idx) * L) if len(pv.idx) else 0.0)
+            lit_row = None
             views[v] = pv._replace(idx=None, cells=None, tap=None, weights=None)  # done with: dropped
         del lit, enough
         stage.release_freed_memory()

@@ -40,9 +40,12 @@ def test_geometry_in_blocks_is_the_whole_grids(small, monkeypatch):
     b_views, b_weight, b_lit = ps._geometry(mesh, fields, surface.resolution, photos, 80.0, True,
                                             lambda *a: calls.append(a))
     assert P > 5 * 37
-    np.testing.assert_array_equal(b_lit.bits, lit.bits)
-    np.testing.assert_array_equal(np.asarray(lit), stage.light_visibility(mesh, surface, rig))
-    assert 0 < int(np.asarray(lit).sum()) < P * L  # some texels see some lights
+    np.testing.assert_array_equal(b_lit[0].bits, lit[0].bits)
+    np.testing.assert_array_equal(b_lit[1], lit[1])
+    # The cast shadows of the texels some camera sees (the only ones read), as the whole grid's.
+    np.testing.assert_array_equal(lit[1], np.flatnonzero(np.any(weight > 0, axis=0)))
+    np.testing.assert_array_equal(np.asarray(lit[0]), stage.light_visibility(mesh, surface, rig)[lit[1]])
+    assert 0 < int(np.asarray(lit[0]).sum()) < lit[0].bits.shape[0] * L  # some texels see some lights
     # The projection is compiled per block length: the same arithmetic, vectorised differently (last bits).
     np.testing.assert_allclose(b_weight, weight, rtol=1e-6, atol=0)
     grid = np.asarray(surface.texel_index)
@@ -59,7 +62,7 @@ def test_geometry_in_blocks_is_the_whole_grids(small, monkeypatch):
         np.testing.assert_array_equal(a.taps(), ref.taps[a.idx])
         np.testing.assert_allclose(a.weights, ref.weights[a.idx], rtol=0, atol=1e-6)
         np.testing.assert_allclose(weight[v], np.where(ref.seen, ref.cos_o, 0.0), rtol=1e-6, atol=0)
-    # One "light visibility" count over the blocks: from 0, never back, to every (texel, light) pair.
+    # One "light visibility" count over the blocks: from 0, never back, to every (texel, light) pair of the grid.
     done = [d for phase, d, total in calls if phase == "light visibility" and total == P * L]
     assert len(done) == len(calls) and done[0] == 0 and done[-1] == P * L and np.all(np.diff(done) >= 0)
 
