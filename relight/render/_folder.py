@@ -318,12 +318,18 @@ def _map_set_views(src: Path, env: EnvMap, angles, method: AbstractMethod, rig_d
 
     tm = load_texel_maps(src)
     cameras = render_cameras(camera, tm.mesh, image_size, tm.cameras[:1] or None)
-    subsurface = subsurface_settings(src, tm.textures.info, tm.maps)
+    info, coverage, filled = tm.textures.info, tm.textures.coverage, tm.textures.filled
+    # The texture set's maps on the texel grid are not read again (the maps at the samples are, and the renderer
+    # builds its own dilated textures from them): only the set's masks and record are kept (~80 B a texel less).
+    maps, surface, mesh = tm.maps, tm.surface, tm.mesh
+    del tm
+    stage.release_freed_memory()
+    subsurface = subsurface_settings(src, info, maps)
     settings = {} if subsurface is None else {"eta": subsurface["eta"]}
     desc = None
     if isinstance(method, Rig):
         if method.rig is None:
-            rig, desc = map_set_rig(src, tm.textures.info)
+            rig, desc = map_set_rig(src, info)
             method = dataclasses.replace(method, rig=rig)
         else:
             desc = rig_description
@@ -333,19 +339,19 @@ def _map_set_views(src: Path, env: EnvMap, angles, method: AbstractMethod, rig_d
         frames = []
         for a in angles:
             rot = None if a % 360.0 == 0.0 else y_rotations([a])[0]
-            img = render_view(tm.maps, tm.surface, tm.mesh, cam, env, method=method, background=False,
+            img = render_view(maps, surface, mesh, cam, env, method=method, background=False,
                               progress=progress, rotation=rot, **settings)
             frames.append(np.asarray(img, np.float32))
             bar.advance(1)
-        cov = pixel_coverage(tm.mesh, cam)
+        cov = pixel_coverage(mesh, cam)
         # Texels with data: those a camera saw (coverage); filled ones (no camera saw them) hold the set's fill,
         # so they count as gaps, not as gutter to pad from their neighbours.
-        on = texel_fraction(tm.mesh, cam, tm.textures.coverage, valid=tm.textures.coverage | tm.textures.filled)
+        on = texel_fraction(mesh, cam, coverage, valid=coverage | filled)
         views.append((frames, cov, uncovered_pixels(cov, on)))
     label = method.name + ("" if desc is None else f" ({desc})")
-    source = {"maps": tm.maps, "surface": tm.surface, "mesh": tm.mesh, "method": method, "folder": src, **settings,
-              "filled": bool(tm.textures.filled.any())}
-    return views, cameras, label, subsurface, tm.mesh, source
+    source = {"maps": maps, "surface": surface, "mesh": mesh, "method": method, "folder": src, **settings,
+              "filled": bool(filled.any())}
+    return views, cameras, label, subsurface, mesh, source
 
 
 def render_folder(src: str | os.PathLike, envmap: str | os.PathLike | None, out: str | os.PathLike, *,

@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator
-from typing import Any
 
 import equinox as eqx
 import jax
@@ -42,30 +41,34 @@ _DILATE_TEXELS = 2
 
 @dataclasses.dataclass
 class _View:
-    """Everything about one camera view that does not depend on the lighting."""
+    """Everything about one camera view that does not depend on the lighting: the pixel samples (hits only, or
+    None without any), the hit mask and, per group of samples (``_Renderer._group``), the maps, view directions and
+    the method's geometry once computed (``turntable`` keeps them across frames)."""
 
-    surface: stage.Surface       # pixel samples (hits only)
-    maps: MaterialMaps           # maps at the hits
-    hit: np.ndarray              # [H s, W s] bool
-    ray_dirs: np.ndarray         # [H s, W s, 3] primary ray directions (for the background)
-    wo: Any                      # [P, 3] toward the camera
-    uv: np.ndarray               # [P, 2]
-    geo: Any = None              # the method's geometry of the pixel samples
+    camera: stage.Camera
+    surface: stage.Surface | None  # pixel samples (hits only; padded to whole groups)
+    hit: np.ndarray                # [H s, W s] bool
+    uv: np.ndarray | None          # [P, 2]
+    group: int                     # samples per group (the last one padded by repeating the last sample)
+    cache: dict | None = None      # group index -> (maps, wo, geometry), when kept
 
 
-# A band's pixel samples are padded to a multiple of 1 / _BUCKETS of the band's sub-pixels: at most _BUCKETS
-# sample counts, so compiled programs, and at most 1 / _BUCKETS of the samples repeated.
+# A band's pixel samples are worked in groups of a fixed count, 1 / _BUCKETS of the band's sub-pixels (the last
+# group padded by repeating the last sample): every group of every band has one shape, so the maps' lookups,
+# the geometry and the shading compile (and JAX keeps) one program per operation, not one per band's hit count,
+# and at most one group of samples is repeated per band.
 _BUCKETS = 8
 
 
 def _textures(maps: MaterialMaps, texel_surface: stage.Surface) -> dict[str, np.ndarray]:
-    tex = {}
+    """The maps on the texel grid, float32, dilated by two texels; the model map as float32 [H, W, 1]."""
     valid = np.zeros(texel_surface.resolution, bool).ravel()
     valid[np.asarray(texel_surface.texel_index)] = True
     valid = valid.reshape(texel_surface.resolution)
+    tex = {}
     for name in ("rho_d", "rho_s", "alpha", "normal", "tangent", "mfp"):
-        t = texel_surface.to_texture(np.asarray(getattr(maps, name), np.float32))
-        tex[name] = dilate(t, valid, _DILATE_TEXELS)
+        tex[name] = dilate(texel_surface.to_texture(np.asarray(getattr(maps, name), np.float32)), valid,
+                           _DILATE_TEXELS)
     model = texel_surface.to_texture(np.asarray(maps.model, np.float32)[:, None])
     tex["model"] = dilate(model, valid, _DILATE_TEXELS)
     return tex
@@ -91,31 +94,40 @@ def _lookup_maps(tex: dict, uv: np.ndarray, surface: stage.Surface, dt) -> Mater
     tg = tg / np.linalg.norm(tg, axis=1, keepdims=True)
     model = np.rint(_nearest(tex["model"], uv)[:, 0]).astype(np.int32)
     alpha = np.maximum(look["alpha"], 1e-4)  # brdf.ALPHA_MIN: bilinear blends never reach 0, but be safe
-    j = lambda x: jnp.asarray(x, dt)  # noqa: E731
+    # device_put of host arrays already in the dtype: jnp.asarray compiles (and keeps) a program per new shape.
+    j = lambda x: jax.device_put(np.asarray(x, dt))  # noqa: E731
     return MaterialMaps(j(np.maximum(look["rho_d"], 0)), j(np.maximum(look["rho_s"], 0)), j(alpha), j(n), j(tg),
-                        j(np.maximum(look["mfp"], 0)), jnp.asarray(model))
+                        j(np.maximum(look["mfp"], 0)), jax.device_put(model))
 
 
-def _view(tex, mesh: stage.Mesh, camera: stage.Camera, supersample: int, dt, bucket: int | None = None) -> _View:
-    """The pixel samples of ``camera`` and their maps; ``bucket``: their count padded (the last sample repeated)
-    to a multiple of it, so bands of one image share their compiled programs instead of compiling (and keeping)
-    each operation anew for each band's count."""
+def _view(mesh: stage.Mesh, camera: stage.Camera, supersample: int, group: int | None = None) -> _View:
+    """The pixel samples of ``camera``: one ray cast (``stage.image_samples``; the hit mask is their pixels).
+    ``group``: samples per group, their count padded (the last sample repeated) to a multiple of it (None: one
+    group of every sample)."""
     s = int(supersample)
-    hit, face, bary, _ = stage.primary_hits(mesh, camera, s)
-    h, w = hit.shape
+    hit = np.zeros((camera.height * s, camera.width * s), bool)
+    try:
+        surf = stage.image_samples(mesh, camera, s)
+    except ValueError as e:  # no ray hits the mesh: the image is the background
+        if "sees no part" not in str(e):
+            raise
+        return _View(camera, None, hit, None, 0)
+    hit.reshape(-1)[np.asarray(surf.texel_index)] = True
+    n = surf.num_samples
+    if group is None:
+        group = n
+    elif n % group:
+        surf = surf.take(np.minimum(np.arange(-(-n // group) * group), n - 1))
+    return _View(camera, surf, hit, np.asarray(surf.uv, np.float64), group)
+
+
+def _ray_dirs(camera: stage.Camera, supersample: int) -> np.ndarray:
+    """float64 [H s * W s, 3]: the primary rays' directions (for the background)."""
+    s = int(supersample)
+    h, w = camera.height * s, camera.width * s
     ys, xs = np.meshgrid((np.arange(h) + 0.5) / s, (np.arange(w) + 0.5) / s, indexing="ij")
-    _, d = camera.rays(jnp.asarray(np.stack([xs, ys], -1).reshape(-1, 2)))
-    ray_dirs = np.broadcast_to(np.asarray(d, np.float64), (h * w, 3)).reshape(h, w, 3)
-    if not np.any(hit):
-        return _View(None, None, hit, ray_dirs, None, None)
-    surf = stage.image_samples(mesh, camera, s)
-    if bucket is not None:
-        n = surf.num_samples
-        surf = surf.take(np.minimum(np.arange(-(-n // bucket) * bucket), n - 1))
-    uv = np.asarray(surf.uv, np.float64)
-    maps = _lookup_maps(tex, uv, surf, dt)
-    wo = camera.view_directions(jnp.asarray(surf.position, dt))
-    return _View(surf, maps, hit, ray_dirs, wo, uv)
+    _, d = camera.rays(np.stack([xs, ys], -1).reshape(-1, 2).astype(np.float64))
+    return np.broadcast_to(np.asarray(d, np.float64), (h * w, 3))
 
 
 def _check_view_args(maps, texel_surface, mesh, camera, env, supersample):
@@ -148,13 +160,28 @@ class _Renderer:
         self.tex_geo = None
         self.op = None
 
-    def view(self, camera, supersample, bucket: int | None = None) -> _View:
+    def view(self, camera, supersample, group: int | None = None, keep: bool = False) -> _View:
+        """The pixel samples of ``camera`` (:func:`_view`); ``keep``: their maps and geometry kept once computed,
+        for views shaded again (``turntable``'s environment rotations)."""
         self.progress("primary rays and maps")
-        v = _view(self.tex, self.mesh, camera, supersample, self.dt, bucket)
-        if v.surface is not None:
-            self.progress("visibility")
-            v.geo = self.method.geometry(self.lt, v.maps, v.surface, self.mesh, terminator=self.s["terminator"])
+        v = _view(self.mesh, camera, supersample, group)
+        v.cache = {} if keep else None
         return v
+
+    def _group(self, v: _View, g: int):
+        """Group ``g`` of a view's samples: (surface, maps, wo toward the camera, geometry), computed (or kept)."""
+        if v.cache is not None and g in v.cache:
+            return v.cache[g]
+        sl = slice(g * v.group, (g + 1) * v.group)
+        surf = v.surface if v.group == v.surface.num_samples else v.surface.take(np.arange(sl.start, sl.stop))
+        maps = _lookup_maps(self.tex, v.uv[sl], surf, self.dt)
+        wo = v.camera.view_directions(jax.device_put(np.asarray(surf.position, self.dt)))
+        self.progress("visibility")
+        geo = self.method.geometry(self.lt, maps, surf, self.mesh, terminator=self.s["terminator"])
+        out = (surf, maps, wo, geo)
+        if v.cache is not None:
+            v.cache[g] = out
+        return out
 
     def exitance_texture(self, rotation, key):
         """Subsurface exitance M on the texel grid [H, W, C] (None without subsurface samples)."""
@@ -177,23 +204,32 @@ class _Renderer:
         tex = self.texel_surface.to_texture(np.asarray(M, np.float32))
         return dilate(tex, valid.reshape(self.texel_surface.resolution), _DILATE_TEXELS)
 
-    def image(self, v: _View, camera, supersample, background, rotation, key, m_tex) -> np.ndarray:
+    def image(self, v: _View, supersample, background, rotation, key, m_tex) -> np.ndarray:
+        """The view shaded under the (rotated) environment, group by group of its samples, box-filtered to the
+        camera's pixels. ``key`` is folded with the group's index when there are several."""
+        camera = v.camera
         s = int(supersample)
         hs, ws = v.hit.shape
         C = self.env.radiance.shape[-1]
         img = np.zeros((hs * ws, C), np.float32)
         if background:
-            d = v.ray_dirs.reshape(-1, 3)
+            d = _ray_dirs(camera, s)
             if rotation is not None:
                 d = d @ np.asarray(rotation, np.float64)  # R^T d
             img[:] = np.asarray(sample_latlong(self.env.radiance, jnp.asarray(d, self.dt)), np.float32)
         if v.surface is not None:
-            self.progress("shading")
-            sss = None if m_tex is None else jnp.asarray(sample_texture(m_tex, v.uv), self.dt)
-            rad, _ = self.method.shade(self.lt, v.geo, v.maps, v.surface, v.wo, rotation=rotation, key=key,
-                                       eta=self.s["eta"], chunk=self.s["chunk"], operator=self.s["operator"],
-                                       sss_exitance=sss)
-            img[np.asarray(v.surface.texel_index)] = np.asarray(rad, np.float32)
+            groups = v.surface.num_samples // v.group
+            for g in range(groups):
+                surf, maps, wo, geo = self._group(v, g)
+                self.progress("shading")
+                sl = slice(g * v.group, (g + 1) * v.group)
+                sss = None if m_tex is None else jax.device_put(np.asarray(sample_texture(m_tex, v.uv[sl]), self.dt))
+                kg = key if key is None or groups == 1 else jax.random.fold_in(key, g)
+                rad, _ = self.method.shade(self.lt, geo, maps, surf, wo, rotation=rotation, key=kg,
+                                           eta=self.s["eta"], chunk=self.s["chunk"], operator=self.s["operator"],
+                                           sss_exitance=sss)
+                img[np.asarray(surf.texel_index)] = np.asarray(rad, np.float32)
+                del surf, maps, wo, geo, rad
         img = img.reshape(camera.height, s, camera.width, s, C).mean(axis=(1, 3))
         return np.where(np.isfinite(img), img, 0.0).astype(np.float32)
 
@@ -209,8 +245,9 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     to the camera's pixels. The subsurface exitance is computed on the texel samples and looked up
     per pixel. Visibility is per pixel sample: cost grows with (W H supersample^2) x directions for
     the directional methods and x samples for ``Reference``; memory is one band's: an image of more than
-    ``relight.image.BAND_RAYS`` sub-pixel samples is rendered in bands of rows (``stage.Camera.crop``), the same
-    pixels (a ``Reference`` key is folded with the band's index).
+    ``relight.image.BAND_RAYS`` sub-pixel samples is rendered in bands of rows (``stage.Camera.crop``), each band's
+    samples in groups of one count (so one compiled program per operation serves every band), the same pixels (a
+    ``Reference`` key is folded with the band's index, then the group's).
 
     Args:
         maps: ``relight.MaterialMaps`` over ``texel_surface``.
@@ -236,16 +273,17 @@ def render_view(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Me
     bands = list(row_bands(camera, supersample))
     if len(bands) == 1:
         v = r.view(camera, supersample)
-        return r.image(v, camera, supersample, background, rotation, key, r.exitance_texture(rotation, key))
-    # In bands of rows (``stage.Camera.crop``): the pixel samples' surface, maps, visibility and shading are one
-    # band's, whatever the image size; the lighting and the texel-space exitance are shared.
+        return r.image(v, supersample, background, rotation, key, r.exitance_texture(rotation, key))
+    # In bands of rows (``stage.Camera.crop``), each in groups of one sample count: the pixel samples' surface,
+    # maps, visibility and shading are one group's, whatever the image size; the lighting and the texel-space
+    # exitance are shared.
     m_tex = r.exitance_texture(rotation, key)
     out = np.empty((camera.height, camera.width, env.radiance.shape[-1]), np.float32)
-    bucket = max(1, bands[0][1].height * camera.width * supersample * supersample // _BUCKETS)
+    group = max(1, bands[0][1].height * camera.width * supersample * supersample // _BUCKETS)
     for b, (r0, band) in enumerate(bands):
         kb = None if key is None else jax.random.fold_in(key, b)  # independent Monte Carlo samples per band
-        v = r.view(band, supersample, bucket=bucket)
-        out[r0:r0 + band.height] = r.image(v, band, supersample, background, rotation, kb, m_tex)
+        v = r.view(band, supersample, group=group)
+        out[r0:r0 + band.height] = r.image(v, supersample, background, rotation, kb, m_tex)
         del v
         stage.release_freed_memory()  # the band's samples and rays, so the next band reuses the pages
     return out
@@ -346,20 +384,20 @@ def turntable(maps: MaterialMaps, texel_surface: stage.Surface, mesh: stage.Mesh
     angles = [2 * math.pi * k / frames for k in range(frames)]
 
     def envmap_frames():
-        v = r.view(camera, supersample)
+        v = r.view(camera, supersample, keep=True)
         for k, a in enumerate(angles):
             axis_dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
             rot = np.asarray(rotation_matrix(jnp.asarray(axis, axis_dt),
                                              jnp.asarray(a)), np.float64)
             rot = None if k == 0 else rot
             kk = jax.random.fold_in(key, k)
-            yield r.image(v, camera, supersample, background, rot, kk, r.exitance_texture(rot, kk))
+            yield r.image(v, supersample, background, rot, kk, r.exitance_texture(rot, kk))
 
     def orbit_frames():
         m_tex = r.exitance_texture(None, key)
         for k, a in enumerate(angles):
             cam = orbit_camera(camera, a, axis)
             v = r.view(cam, supersample)
-            yield r.image(v, cam, supersample, background, None, jax.random.fold_in(key, k), m_tex)
+            yield r.image(v, supersample, background, None, jax.random.fold_in(key, k), m_tex)
 
     return envmap_frames() if mode == "envmap" else orbit_frames()
