@@ -81,7 +81,11 @@ def image_samples(mesh: Mesh, camera: Camera, supersample: int = 1) -> Surface:
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         along = d @ fwd
     cos = np.maximum(np.abs(np.sum(d * ng, axis=1)), _GRAZING_COS_MIN)
-    area = np.asarray(camera.pixel_area(p.astype(np.float32)), np.float64) / (s * s) * along / cos
+    # pixel_area is jitted: its points padded (with the first point) to a power of two (at least 2^10), so a render
+    # in bands of rows does not compile (and keep) a program for every band's hit count.
+    n = len(p)
+    padded = np.concatenate([p, np.broadcast_to(p[:1], ((1 << max(10, (n - 1).bit_length())) - n, 3))]) if n else p
+    area = np.asarray(camera.pixel_area(padded.astype(np.float32)), np.float64)[:n] / (s * s) * along / cos
     # Cast on the host and device_put: jnp.asarray compiles a program for each sample count (kept by JAX's caches).
     f32 = lambda x: jax.device_put(np.asarray(x, np.float32))  # noqa: E731
     return Surface(position=f32(p), normal=f32(nrm), tangent=f32(t), bitangent=f32(b), uv=f32(uv), area=f32(area),
