@@ -11,7 +11,7 @@ from brdf import frame_from_normal_tangent
 from ._camera import Camera
 from ._mesh import Mesh
 from ._surface import Surface
-from ._visibility import primary_hits
+from ._visibility import _padded, primary_hits
 
 # A pixel seen at grazing incidence covers an unbounded area (1 / cos); the
 # footprint is capped at this cosine (~89.4 degrees) so areas stay finite.
@@ -81,10 +81,10 @@ def image_samples(mesh: Mesh, camera: Camera, supersample: int = 1) -> Surface:
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         along = d @ fwd
     cos = np.maximum(np.abs(np.sum(d * ng, axis=1)), _GRAZING_COS_MIN)
-    # pixel_area is jitted: its points padded (with the first point) to a power of two (at least 2^10), so a render
-    # in bands of rows does not compile (and keep) a program for every band's hit count.
+    # pixel_area is jitted: its points padded (with the first point) to one of a dozen lengths, so a render in
+    # bands of rows does not compile (and keep) a program for every band's hit count.
     n = len(p)
-    padded = np.concatenate([p, np.broadcast_to(p[:1], ((1 << max(10, (n - 1).bit_length())) - n, 3))]) if n else p
+    padded = np.concatenate([p, np.broadcast_to(p[:1], (_padded(n) - n, 3))]) if n else p
     area = np.asarray(camera.pixel_area(padded.astype(np.float32)), np.float64)[:n] / (s * s) * along / cos
     # Cast on the host and device_put: jnp.asarray compiles a program for each sample count (kept by JAX's caches).
     f32 = lambda x: jax.device_put(np.asarray(x, np.float32))  # noqa: E731

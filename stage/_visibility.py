@@ -342,10 +342,9 @@ def light_visibility(mesh: Mesh, surface: Surface, rig: Rig, chunk: int = 1 << 2
 
 
 def _padded(n: int) -> int:
-    """The length a block of ``n`` samples is padded to for a JAX call: the next power of two, at least 2^10
-    (so a stream of blocks of any lengths compiles at most a dozen sizes), at most ``_OCCLUDER_BLOCK`` (n is
-    never more)."""
-    return min(max(1 << 10, 1 << max(0, int(n) - 1).bit_length()), max(int(n), _OCCLUDER_BLOCK))
+    """The length a batch of ``n`` samples is padded to for a JAX call: the next power of two, at least 2^10, so
+    a stream of batches of any lengths compiles (and JAX keeps) programs for a dozen lengths, not for each one."""
+    return 1 << max(10, (int(n) - 1).bit_length())
 
 
 def camera_visibility(mesh: Mesh, surface: Surface, cameras: list[Camera] | tuple[Camera, ...] | Camera, *,
