@@ -61,6 +61,7 @@ from ._run import write_diligent_folder as write_diligent_folder
 from ._shadows import SHADOW_RATIO as SHADOW_RATIO
 from ._solvers import SOLVERS as SOLVERS
 from ._solvers import resolve_solver as resolve_solver
+from ._spd import SPDCholesky as SPDCholesky
 from ._subsurface import fit_subsurface as fit_subsurface
 from ._subsurface_texel import PRIOR_SIGMA_LN_MFP as PRIOR_SIGMA_LN_MFP
 from ._write import write_fit_folder as write_fit_folder

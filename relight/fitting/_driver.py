@@ -175,7 +175,10 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
             (Levenberg-Marquardt, default), "optx-lm", "gn" (Gauss-Newton), "dogleg", "bfgs", which
             stand for those solvers with tolerances ``options.rtol`` / ``options.atol`` (default
             1e-5 / 1e-6) and, but for "bfgs", the normal-equations Cholesky linear solver.
-            ``Fit.solver`` records the name. The solver sees each sample's radiance and irradiance
+            ``Fit.solver`` records the name. An Optimistix solver of your own that takes a linear
+            solver should get ``lineax.Normal(relight.fitting.SPDCholesky())`` on the CPU, not
+            ``lineax.Cholesky()`` (batched LAPACK can hang there: docs/fit.md, "Findings", item 8).
+            The solver sees each sample's radiance and irradiance
             divided by its RMS irradiance (docs/fit.md, "Units and scale"), so ``atol`` applies to
             residuals in radiance per unit irradiance, whatever the capture's units: the fit is
             invariant under a change of units (rig intensities and radiance x k).

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from brdf import safe_div, safe_normalize
 
 from ._model import BLINN_PHONG, GGX_ANISO, Layout, Params, frame, specular
+from ._spd import spd_solve
 
 # Lights with a half vector within this angle of the normal are left out of
 # photometric stereo (a GGX lobe of alpha 0.3 is down to ~5% of its peak there).
@@ -53,7 +54,7 @@ def photometric_stereo(obs, w, wi, wo, irr, fit_normal: bool):
     z = jnp.asarray([0.0, 0.0, 1.0], obs.dtype)
     if fit_normal:
         A = jnp.einsum("n,ni,nj->ij", s, wi, wi) + 1e-6 * jnp.eye(3, dtype=obs.dtype)
-        b = jnp.linalg.solve(A, jnp.einsum("n,n,ni->i", s, shade, wi))
+        b = spd_solve(A, jnp.einsum("n,n,ni->i", s, shade, wi))
         n = safe_normalize(b)
         # A normal facing away from the camera-side hemisphere is a failed
         # solve (too few or coplanar lights): keep the surface's.

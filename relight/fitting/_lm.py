@@ -36,6 +36,8 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from ._spd import spd_solve
+
 # Nielsen's initial damping relative to Marquardt's scaling (MNT 2004 suggest
 # tau = 1e-3 when the start is believed good; the photometric start is).
 _TAU = 1e-3
@@ -125,7 +127,7 @@ class NormalLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
         d = jnp.diagonal(jtj)
         d = jnp.maximum(d, 1e-12 * jnp.max(d) + jnp.finfo(dt).tiny)
-        delta = -jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(jtj + jnp.diag(mu * d)), grad)
+        delta = -spd_solve(jtj + jnp.diag(mu * d), grad)
         ok = jnp.all(jnp.isfinite(delta))
         delta = jnp.where(ok, delta, 0.0)
         pred = jnp.where(ok, 0.5 * jnp.dot(delta, mu * d * delta - grad), 0.0)
@@ -135,7 +137,7 @@ class NormalLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         # steps can stay long in y while what is left to gain is far below
         # what the noise resolves (a parameter change is significant at a
         # cost change of about cost / dof, 2e-3 of it for 500 residuals).
-        newton = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(jtj + jnp.diag(1e-9 * d)), grad)
+        newton = spd_solve(jtj + jnp.diag(1e-9 * d), grad)
         gain = 0.5 * jnp.dot(grad, newton)
         near = self.norm(jnp.abs(newton) / (self.atol + self.rtol * jnp.abs(y_new))) < 1
         left = gain <= self.rtol * cost_new + self.atol ** 2

@@ -56,6 +56,7 @@ from ._observations import _obs_bucket
 from ._options import FitOptions, as_options
 from ._result import Fit, fit_from_arrays, rig_alpha_floor
 from ._solvers import resolve_solver, solve_one
+from ._spd import spd_solve
 
 __all__ = ["MIN_PATTERN_OBSERVATIONS", "fit_patterns"]
 
@@ -138,7 +139,7 @@ def pattern_start(obs, m, weff, wi, wo, irr, lay: Layout) -> Params:
         mv = jnp.mean(m, axis=2)
         A = jnp.einsum("vk,ki,kj->ij", mv, g, g)
         A = A + 1e-9 * (jnp.trace(A) + 1e-30) * jnp.eye(3, dtype=dt)
-        b = jnp.linalg.solve(A, jnp.einsum("vk,vk,ki->i", mv, s, g))
+        b = spd_solve(A, jnp.einsum("vk,vk,ki->i", mv, s, g))
         cand = safe_normalize(b)
         wo_mean = safe_normalize(jnp.sum(wo * jnp.any(mv > 0, axis=1, keepdims=True).astype(dt), 0) + 1e-12 * z)
         ok = jnp.all(jnp.isfinite(cand)) & (cand[2] > 0.05) & (cand @ wo_mean > 0.05)

@@ -20,12 +20,13 @@ from . import _model as _fit_model
 from ._lm import NormalLevenbergMarquardt
 from ._model import Layout
 from ._result import RESULTS, result_code
+from ._spd import SPDCholesky, spd_inverse
 
 # The string spellings of ``fit(solver=...)`` (the CLI's --solver) and their
 # tolerances. Normal equations + Cholesky: the systems are 3-9 wide and, with
 # LM's damping, well conditioned; several times cheaper than QR of [N, p].
 _RTOL, _ATOL = 1e-5, 1e-6
-_CHOLESKY = lx.Normal(lx.Cholesky())
+_CHOLESKY = lx.Normal(SPDCholesky())
 # name -> the Optimistix solver it stands for, built with (rtol, atol).
 _NAMED = {
     "lm": lambda rtol, atol: NormalLevenbergMarquardt(rtol=rtol, atol=atol),
@@ -134,7 +135,7 @@ def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: 
     dof = jnp.maximum(n_weight - k, 1.0)
     s2 = jnp.sum(r_u ** 2) / dof
     ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
-    cov = s2 * jnp.linalg.inv(jtj + ridge * jnp.eye(k, dtype=u.dtype))
+    cov = s2 * spd_inverse(jtj + ridge * jnp.eye(k, dtype=u.dtype))
     Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
     var = jnp.sum((Jp @ cov) * Jp, axis=1)
     # Unknown, not "perfectly known": a parameter the data do not constrain

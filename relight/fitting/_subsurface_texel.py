@@ -57,6 +57,7 @@ import skin_bssrdf
 
 from ._devices import RoundsProgress, _chunks_of
 from ._result import MAX_STEPS, RESULTS, Fit, result_code
+from ._spd import SPDCholesky
 
 # Standard deviation (in ln mfp) of the prior pulling each texel's mean free
 # path toward its region's value. Its residual is s (ln mfp - ln mfp_region) /
@@ -161,7 +162,7 @@ def solve_chunk(idx, Es, nb_index, nb_w, nb_r, rho, unit, a, ybar, c0, cnt, wl, 
     the region's ln mfp. Returns (u [n, C, 2], result code [n, C], steps [n, C])."""
     Gs, Gn = _gather(idx, Es, nb_index, nb_w, unit)
     r = nb_r[idx]
-    solver = optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    solver = optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.Normal(SPDCholesky()))
 
     def one(Gs, Gn, r, rho, a, ybar, c0, cnt, wl, u0, prior):
         n, floor = _stats(ybar, a, c0, cnt, wl)

@@ -34,6 +34,8 @@ from jaxtyping import Array, Float
 
 import stage
 
+from ..fitting._spd import spd_solve
+
 # The decoder's roughness range: the fitter's prior floor (relight.ALPHA_FIT_MIN) up to the ladder's ALPHA_MAX.
 ALPHA_DECODE_MIN = 0.02
 ALPHA_DECODE_MAX = 1.0
@@ -154,7 +156,7 @@ def grid_features(y: Float[Array, "sample pattern channel"], white: Float[Array,
     # basis is collinear with the white one (a lobe too broad to tell from albedo).
     M = M + (10.0 * float(jnp.finfo(w.dtype).eps) * tr + 1e-30) * eye4
     rhs = jnp.concatenate([jnp.swapaxes(b_c, 1, 2), b_3[..., None]], axis=-1)  # [N, J, C+1]
-    x = jnp.linalg.solve(M, rhs[..., None])[..., 0]
+    x = spd_solve(M, rhs)
     res = r - (w[..., None] * jnp.swapaxes(x[..., :C], 1, 2)[:, None] + A * x[:, None, None, :, C])
     rel = jnp.sqrt(jnp.sum(res * res, axis=(1, 2)) / (jnp.sum((y / s) ** 2, axis=(1, 2))[:, None] + 1e-30))
     feats = jnp.concatenate([jnp.clip(x, -1.0, 2.0), jnp.log(rel + 1e-4)[..., None]], axis=-1)  # [N, J, 5]

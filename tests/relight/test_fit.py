@@ -337,7 +337,8 @@ def test_solver_object_is_the_named_solver(scene):
     optx_lm = fit(cap, sub, model="ggx", loss="cauchy",
                   solver="optx-lm")
     same = fit(cap, sub, model="ggx", loss="cauchy",
-               solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6, linear_solver=lx.Normal(lx.Cholesky())))
+               solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6,
+                                              linear_solver=lx.Normal(relight.fitting.SPDCholesky())))
     qr = fit(cap, sub, model="ggx", loss="cauchy", solver=optx.LevenbergMarquardt(rtol=1e-5, atol=1e-6))
     assert qr.solver == "LevenbergMarquardt(rtol=1e-05, atol=1e-06)"
     for k in ("rho_d", "rho_s", "alpha", "normal", "steps", "result"):
