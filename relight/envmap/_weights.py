@@ -286,8 +286,11 @@ def _barycentric_jit(env: EnvMap, directions: Array, faces: Array, supersample: 
     unit = unit / jnp.linalg.norm(unit, axis=-1, keepdims=True)
     n_lights = unit.shape[0]
     a, b, c = unit[faces[:, 0]], unit[faces[:, 1]], unit[faces[:, 2]]
-    M = jnp.stack([a, b, c], axis=-1)  # [F, 3(xyz), 3(vertex)]
-    Minv = jnp.linalg.inv(M)  # [F, 3(vertex), 3(xyz)]
+    # M = [a b c] (columns, [F, 3(xyz), 3(vertex)]) inverted by Cramer's rule: rows b x c, c x a, a x b over
+    # det M = a . (b x c). Not jnp.linalg.inv: a batched LAPACK call can hang XLA's CPU thread pool
+    # (docs/fit.md, "Findings for the fitter", item 8).
+    bc, ca, ab = jnp.cross(b, c), jnp.cross(c, a), jnp.cross(a, b)
+    Minv = jnp.stack([bc, ca, ab], axis=1) / jnp.sum(a * bc, axis=-1)[:, None, None]  # [F, 3(vertex), 3(xyz)]
     # The ray from the centre along d leaves the hull through the facet whose
     # plane it meets first, i.e. the largest (n_f . d) / offset_f; offsets are
     # > 0 when the centre is inside the hull. Floor: a facet through the centre
