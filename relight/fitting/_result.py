@@ -205,9 +205,10 @@ class Fit(eqx.Module):
 
         A lobe collapses where the lights do not constrain it (no light near the texel's mirror
         direction, or Lambertian data under a fixed lobed rung). Its parameters then sit where the fit's
-        sigmoid bounds flatten the Jacobian, so their 1-sigma reads small exactly where the value is least
-        known: this flag, not ``uncertainty``, is what marks them. Samples with too few observations are
-        ``failed``, not collapsed."""
+        sigmoid bounds flatten the Jacobian and are not measurements. A lobe switched off (F0 below the
+        bound) is held there for the uncertainties: its sigmas are inf (``unidentified``), the albedo's and
+        the normal's those of the free parameters. Samples with too few observations are ``failed``, not
+        collapsed."""
         lobed = (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
         at_bound = (self.rho_s[:, 0] < self.COLLAPSED_F0) | (jnp.max(self.alpha, axis=1) >= self.COLLAPSED_ALPHA)
         return lobed & at_bound & (self.observed >= self.min_observed)

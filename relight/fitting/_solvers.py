@@ -18,8 +18,8 @@ import optimistix as optx
 from . import _init as _fit_init
 from . import _model as _fit_model
 from ._lm import NormalLevenbergMarquardt
-from ._model import Layout
-from ._result import RESULTS, result_code
+from ._model import BLINN_PHONG, Layout
+from ._result import RESULTS, Fit, result_code
 from ._spd import SPDCholesky, spd_inverse
 
 # The string spellings of ``fit(solver=...)`` (the CLI's --solver) and their
@@ -83,6 +83,22 @@ def _start_chunk(obs, w, wi, wo, irr, lay):
     return jax.vmap(lambda *a: _fit_model.pack(_fit_init.start(*a, lay), lay))(obs, w, wi, wo, irr)
 
 
+_LOBE = ("rho_s", "alpha_x", "alpha_y", "phi")
+
+
+def held_lobe(u, lay: Layout):
+    """[size] bool: the entries of u that are a switched-off lobe's (F0 below ``Fit.COLLAPSED_F0``: the
+    lobe adds nothing, its F0 sits at its bound and its roughness is free), all False for Lambert. A lobe
+    collapsed the other way, roughness at ``Fit.COLLAPSED_ALPHA`` with F0 on, is broad and grey and may
+    have taken part of the diffuse signal: it stays in the covariance, where that trade shows as the
+    albedo's sigma (``Fit.ambiguous``)."""
+    lobe = jnp.asarray([name in _LOBE for name in lay.names])
+    if lay.model < BLINN_PHONG:
+        return lobe
+    p = _fit_model.unpack(u, lay)
+    return lobe & (p["rho_s"][0] < Fit.COLLAPSED_F0)
+
+
 def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: int):
     """One sample's solve, shared by :func:`fit` and :func:`relight.fitting.fit_patterns`.
 
@@ -130,20 +146,31 @@ def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: 
     # lower the cost): no curvature to report, every sigma unknown.
     jtj = jnp.where(good, sol.aux[0], 0.0) if normal_lm else J.T @ J
     # One-sigma uncertainties from the Gauss-Newton covariance s^2 (J^T J)^-1
-    # of the (robust) residual, mapped to the physical parameters.
+    # of the (robust) residual, mapped to the physical parameters. A switched-off lobe (:func:`held_lobe`)
+    # is held where it is, as bounded least squares treats a parameter at an active bound: the covariance
+    # is the free parameters' (the rest of J^T J), and the lobe's own sigmas are unknown. Left in, its flat
+    # sigmoid columns made the albedo's sigma read as "ambiguous" on texels whose lights show no lobe at
+    # all (docs/fit.md, "Flags").
+    fixed = held_lobe(u, lay)
+    free = ~fixed
     k = u.shape[0]
-    dof = jnp.maximum(n_weight - k, 1.0)
+    k_free = jnp.sum(free.astype(u.dtype))
+    jtj = jnp.where(free[:, None] & free[None, :], jtj, 0.0)
+    dof = jnp.maximum(n_weight - k_free, 1.0)
     s2 = jnp.sum(r_u ** 2) / dof
-    ridge = 1e-9 * (jnp.trace(jtj) / k + 1e-30)
-    cov = s2 * spd_inverse(jtj + ridge * jnp.eye(k, dtype=u.dtype))
+    ridge = 1e-9 * (jnp.trace(jtj) / jnp.maximum(k_free, 1.0) + 1e-30)
+    cov = s2 * spd_inverse(jtj + jnp.diag(jnp.where(fixed, 1.0, ridge)))
     Jp = jax.jacfwd(lambda v: _fit_model.physical_vector(_fit_model.unpack(v, lay), lay))(u)
     var = jnp.sum((Jp @ cov) * Jp, axis=1)
     # Unknown, not "perfectly known": a parameter the data do not constrain
     # (its Jacobian column numerically null next to the others, or fewer
     # valid observations than parameters: no noise estimate) or whose
     # variance is not finite or beyond any meaningful range gets sigma = inf.
-    null_u = (jnp.diagonal(jtj) <= 1e-10 * (jnp.trace(jtj) / k)) | (n_weight <= k)
-    unknown = (jnp.abs(Jp) @ null_u.astype(u.dtype) > 0) | ~jnp.isfinite(var) | (var > 1e6) | (n_weight <= k)
+    null_u = (jnp.diagonal(jtj) <= 1e-10 * (jnp.trace(jtj) / k)) | (n_weight <= k) | fixed
+    # (physical_vector lists the parameters in u's order, so ``fixed`` marks the held lobe's there too:
+    # its sigmas are unknown even where a saturated sigmoid zeroes their Jacobian rows.)
+    unknown = ((jnp.abs(Jp) @ null_u.astype(u.dtype) > 0) | ~jnp.isfinite(var) | (var > 1e6) | (n_weight <= k)
+               | fixed)
     sigma = jnp.where(unknown, jnp.inf, jnp.sqrt(jnp.clip(jnp.where(unknown, 0.0, var), 0.0, None)))
     return u, code, sol.stats["num_steps"], sigma, final
 
