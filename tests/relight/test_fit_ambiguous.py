@@ -13,15 +13,21 @@ import stage
 from ..scenes import uv_sphere
 
 
-def test_albedo_traded_for_a_lobe_is_flagged_ambiguous():
+def _front_of_sphere(texels: int, pixels: int):
+    """The texels of a sphere (radius 50) facing a distant camera, under a geodesic dome: (surface, rig,
+    camera, light visibility, camera visibility)."""
     mesh = uv_sphere(radius=50.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 32)
+    surface = stage.texel_samples(mesh, texels)
     rig = stage.geodesic_dome(2)
-    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=256, height=256)
+    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=pixels, height=pixels)
     lv = stage.light_visibility(mesh, surface, rig)
     cv = stage.camera_visibility(mesh, surface, [cam])
     keep = np.nonzero(cv[0] & (np.asarray(surface.position)[:, 2] / 50.0 > 0.3))[0]
-    surface, lv, cv = surface.subset(keep), lv[keep], cv[:, keep]
+    return surface.subset(keep), rig, cam, lv[keep], cv[:, keep]
+
+
+def test_albedo_traded_for_a_lobe_is_flagged_ambiguous():
+    surface, rig, cam, lv, cv = _front_of_sphere(32, 256)
     n = surface.num_samples
     rng = np.random.default_rng(0)
     # Skin-like: a faint broad lobe over a reddish diffuse term.
@@ -53,14 +59,7 @@ def test_a_switched_off_lobe_is_held_for_the_albedos_sigma():
     # the lobe is held at its bound for the covariance, as bounded least squares holds a parameter at an
     # active bound: the albedo's 1-sigma is then the Lambert rung's on the same data (same residuals, same
     # free parameters), and the lobe's own sigmas are unknown, not small.
-    mesh = uv_sphere(radius=50.0, n_lat=24, n_lon=48)
-    surface = stage.texel_samples(mesh, 24)
-    rig = stage.geodesic_dome(2)
-    cam = stage.look_at((0.0, 0.0, 1000.0), fov_deg=10, width=128, height=128)
-    lv = stage.light_visibility(mesh, surface, rig)
-    cv = stage.camera_visibility(mesh, surface, [cam])
-    keep = np.nonzero(cv[0] & (np.asarray(surface.position)[:, 2] / 50.0 > 0.3))[0]
-    surface, lv, cv = surface.subset(keep), lv[keep], cv[:, keep]
+    surface, rig, cam, lv, cv = _front_of_sphere(24, 128)
     n = surface.num_samples
     rng = np.random.default_rng(1)
     rho = jnp.asarray(rng.uniform(0.2, 0.7, (n, 3)), jnp.float32)
