@@ -24,6 +24,7 @@ from relight.fitting import (
     Layout,
     NormalLevenbergMarquardt,
     Observations,
+    SPDCholesky,
     predict_radiance,
     residual_and_jacobian,
     solve_samples,
@@ -84,7 +85,7 @@ def main():
     # Tolerances that never stop a solve early, so every texel takes max_steps.
     solvers = (("NormalLevenbergMarquardt", NormalLevenbergMarquardt(rtol=1e-12, atol=1e-12)),
                ("optx.LevenbergMarquardt", optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12,
-                                                                   linear_solver=lx.Normal(lx.Cholesky()))))
+                                                                   linear_solver=lx.Normal(SPDCholesky()))))
     for name, solver in solvers:
         for ms in (1, 20):
             def solve(u, obs, ms=ms, solver=solver):
