@@ -150,7 +150,7 @@ def solve_one(rj, u0, n_weight, n_entries: int, lay: Layout, solver, max_steps: 
     # is held where it is, as bounded least squares treats a parameter at an active bound: the covariance
     # is the free parameters' (the rest of J^T J), and the lobe's own sigmas are unknown. Left in, its flat
     # sigmoid columns made the albedo's sigma read as "ambiguous" on texels whose lights show no lobe at
-    # all (docs/fit.md, "Flags").
+    # all (docs/fit.md, "How", item 6).
     fixed = held_lobe(u, lay)
     free = ~fixed
     k = u.shape[0]
