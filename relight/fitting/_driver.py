@@ -50,6 +50,7 @@ from ._devices import RoundsProgress, _chunk_size, _chunks_of, _fit_devices, _pl
 from ._extrapolation import extrapolated_highlights
 from ._ladder import _assemble, _rungs, choose_rungs, finish_block, heldout_weights, specular_cosines
 from ._model import Layout
+from ._neighbours import lobes_from_neighbours
 from ._observations import _normalise, _obs_bucket, _observations_of
 from ._options import FitOptions, as_options
 from ._result import FIELDS, MAX_STEPS, MIN_OBSERVATIONS, Fit, fit_from_arrays, rig_alpha_floor
@@ -87,6 +88,7 @@ class _Plan:
     n_valid: np.ndarray | None = None
     n_keep: int | None = None
     shadow_ratio: float | None = None
+    neighbour_lobes: bool = False
 
     def set_counts(self, n_valid) -> None:
         """Set the valid observations per sample [P] and the packed observation count they give (the
@@ -97,8 +99,8 @@ class _Plan:
 
 
 def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauchy, alpha_floor, holdout,
-          options: FitOptions, shadow_ratio: float | None = None, block: int | None = None, count: bool = True,
-          where: str = "fit") -> _Plan:
+          options: FitOptions, shadow_ratio: float | None = None, neighbour_lobes: bool = True,
+          block: int | None = None, count: bool = True, where: str = "fit") -> _Plan:
     """Check ``fit``'s arguments and set the fit up (``block``: overrides ``options.block``;
     ``count=False``: the caller counts the valid observations, :meth:`_Plan.set_counts`).
     ValueError / TypeError naming the argument."""
@@ -137,7 +139,8 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
                 put=_placer(devs), cauchy=float(cauchy) if loss == "cauchy" else None)
     plan = _Plan(source, rig, cameras, P, rungs, bool(normals), floor, int(holdout), solver_name, dt, block,
                  int(options.chunk), opts, len(devs),
-                 shadow_ratio=None if shadow_ratio is None else float(shadow_ratio))
+                 shadow_ratio=None if shadow_ratio is None else float(shadow_ratio),
+                 neighbour_lobes=bool(neighbour_lobes) and len(rungs) > 1)
     if count:
         plan.set_counts(valid_counts(source, block))
     return plan
@@ -145,7 +148,8 @@ def _plan(capture, surface: stage.Surface, *, model, normals, solver, loss, cauc
 
 def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals: bool = False, solver="lm",
         loss: str = DEFAULT_LOSS, cauchy: float = 0.1, alpha_floor: float | None = None, holdout: int = 5,
-        shadow_ratio: float | None = None, options: FitOptions | None = None) -> Fit:
+        shadow_ratio: float | None = None, neighbour_lobes: bool = True,
+        options: FitOptions | None = None) -> Fit:
     """Fit a reflectance model per sample to an OLAT capture.
 
     NaN never leaves: a sample with too few observations gets grey defaults, and one whose solve
@@ -193,6 +197,11 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
             for a cast shadow the model does not have, censored (weight 0), and each sample is refitted
             from its first fit. A sample left with fewer than ``MIN_OBSERVATIONS`` keeps them all.
             ``Fit.rms`` is then over the kept observations (docs/fit.md, "How", item 4).
+        neighbour_lobes: for ``model="auto"``: a sample left on Lambert whose lights never sampled a lobe
+            (no valid half vector within the lobe's half maximum) takes the median microfacet lobe of
+            its nearest fitted samples, where a quarter of them have one, if its own observations are
+            predicted as well (:mod:`relight.fitting._neighbours`); its F0 and roughness sigmas are inf
+            (a prior, not a measurement). False: every sample from its own data alone.
         options: how the fit runs (:class:`FitOptions`: chunk, block, rounds, steps, tolerances,
             devices, progress, on_block); None = the defaults.
 
@@ -203,7 +212,8 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
     """
     options = as_options(options)
     plan = _plan(capture, surface, model=model, normals=normals, solver=solver, loss=loss, cauchy=cauchy,
-                 alpha_floor=alpha_floor, holdout=holdout, shadow_ratio=shadow_ratio, options=options)
+                 alpha_floor=alpha_floor, holdout=holdout, shadow_ratio=shadow_ratio,
+                 neighbour_lobes=neighbour_lobes, options=options)
     P = plan.P
     kinds = {"f": plan.dt, "i": np.int32, "o": np.float32}
     out = {k: np.zeros((P, *shape), kinds[c]) for k, (shape, c) in FIELDS.items()}
@@ -220,7 +230,10 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
     for k in plan.rungs if len(plan.rungs) > 1 else ():
         phases.finish(f"fit {MODELS[k]}", chosen[k])
     _warn_albedo_at_bound(out["rho_d"], plan.n_valid >= MIN_OBSERVATIONS)
-    return fit_from_arrays(out, plan.dt, plan.floor, plan.solver_name)
+    fitted = fit_from_arrays(out, plan.dt, plan.floor, plan.solver_name)
+    if plan.neighbour_lobes:
+        fitted = lobes_from_neighbours(fitted, plan, surface, options.progress)
+    return fitted
 
 
 # A diffuse albedo this close to 1, the model's bound (energy conservation), is pressed against it; on more than

@@ -35,6 +35,7 @@ import stage
 
 from ..results import atomic_write_bytes, atomic_write_text
 from . import _driver as _d
+from ._neighbours import lobes_from_neighbours
 from ._options import as_options
 from ._result import FIELDS, Fit, fit_from_arrays
 
@@ -66,12 +67,36 @@ def _hash_leaves(h, tree) -> None:
             h.update(repr(leaf).encode())
 
 
+def _fit_keywords(fit_kw: dict) -> dict:
+    """relight.fit's keywords with ``fit_kw`` over its defaults, read from its signature (one home for
+    them); TypeError naming an unknown keyword."""
+    kw = {k: p.default for k, p in inspect.signature(_d.fit).parameters.items() if p.kind is p.KEYWORD_ONLY}
+    unknown = set(fit_kw) - set(kw)
+    if unknown:
+        raise TypeError(f"fit_parts: unknown fit keyword(s) {sorted(unknown)} (on_block is fit_parts' own)")
+    kw.update(fit_kw)
+    return kw
+
+
+def finish_merged(fitted: Fit, capture, surface, block: int, fit_kw: dict) -> Fit:
+    """What :func:`relight.fit` does after its blocks, on a merged set's ``Fit``: with ``model="auto"``
+    and ``neighbour_lobes`` (the default), the lobes the lights never sampled taken from the neighbours
+    (:mod:`relight.fitting._neighbours`; it reads the capture again, a block at a time). ``fit_kw``: the
+    keywords the parts were fitted with. The result is then ``relight.fit``'s, bit for bit."""
+    kw = _fit_keywords(fit_kw)
+    options = as_options(kw.pop("options"))
+    plan = _d._plan(capture, surface, **kw, options=options, block=block, count=False, where="fit_parts")
+    if not plan.neighbour_lobes:
+        return fitted
+    return lobes_from_neighbours(fitted, plan, surface, options.progress)
+
+
 def _settings(fit_kw: dict, block: int, ndev: int, dt) -> dict:
     """The settings that change a fit's numbers, as JSON: ``fit``'s keywords (progress and on_block left
     out), the block size, the number of devices (it pads the solver's chunk) and the working float."""
     out = {}
     for k, v in sorted(fit_kw.items()):
-        if k in ("progress", "devices"):
+        if k in ("progress", "devices", "neighbour_lobes"):  # neighbour_lobes acts after the parts (finish_merged)
             continue
         if k == "shadow_ratio" and v is None:  # off, as before the keyword: earlier sets keep their fingerprint
             continue
@@ -88,12 +113,7 @@ class _Plan:
     padded shapes, the valid counts), plus the fingerprint of it all."""
 
     def __init__(self, capture, surface, block: int, fit_kw: dict):
-        # relight.fit's keywords and defaults, read from its signature (one home for them).
-        kw = {k: p.default for k, p in inspect.signature(_d.fit).parameters.items() if p.kind is p.KEYWORD_ONLY}
-        unknown = set(fit_kw) - set(kw)
-        if unknown:
-            raise TypeError(f"fit_parts: unknown fit keyword(s) {sorted(unknown)} (on_block is fit_parts' own)")
-        kw.update(fit_kw)
+        kw = _fit_keywords(fit_kw)
         options = as_options(kw.pop("options"))
         self.fit = _d._plan(capture, surface, **kw, options=options, block=block, count=False, where="fit_parts")
         self.options = options
@@ -248,8 +268,9 @@ def fit_parts(capture, surface, folder, *, block: int = 4096, process_index: int
 
 def merge_parts(folder, surface) -> Fit:
     """The ``Fit`` of a finished result set written by :func:`fit_parts` (the same, bit for bit, as
-    ``relight.fit`` with its settings). ``surface``: the fitted surface (checked against the set's
-    fingerprint). Raises :class:`PartsIncompleteError` naming the missing blocks,
+    ``relight.fit`` with its settings, but for ``model="auto"``'s lobes from the neighbours, which read the
+    capture: :func:`relight.fitting.fit_resumable` adds them). ``surface``: the fitted surface (checked
+    against the set's fingerprint). Raises :class:`PartsIncompleteError` naming the missing blocks,
     :class:`PartsFingerprintError` for a part of another fit or another surface, FileNotFoundError
     naming ``folder`` without a manifest."""
     folder = Path(folder)

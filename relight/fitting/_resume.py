@@ -12,7 +12,7 @@ import jax
 
 from ._driver import DEFAULT_BLOCK
 from ._options import FitOptions, as_options
-from ._parts import MANIFEST, fit_parts, merge_parts
+from ._parts import MANIFEST, finish_merged, fit_parts, merge_parts
 from ._result import Fit
 
 
@@ -73,7 +73,7 @@ def fit_resumable(capture, surface, folder, *, resume: bool = False, options: Fi
     block = DEFAULT_BLOCK if options.block is None else int(options.block)
     fit_parts(capture, surface, folder, block=block, process_index=0, process_count=1, on_block=each,
               options=dataclasses.replace(options, on_block=None), **fit_kw)
-    fitted = merge_parts(folder, surface)
+    fitted = finish_merged(merge_parts(folder, surface), capture, surface, block, dict(fit_kw, options=options))
     n_blocks = -(-surface.num_samples // block)
     return fitted, {"folder": folder.name, "block": block, "blocks": n_blocks,
                     "devices": _device_count(options.devices), "fitted_blocks": len(fitted_now),

@@ -173,6 +173,8 @@ def test_model_ladder_picks_the_simplest_sufficient_rung(scene):
     more = {p: last.pop(p) for p in list(last) if p.endswith(" (more steps)")}
     assert {f"fit {m} (held out)" for m in relight.MODELS[:4]} <= set(last)
     assert all(d == 0 for d, _ in first.values()) and all(d == t for d, t in last.values())
+    # The lobes from the neighbours, after the refits: a phase over the Lambert samples it looks at.
+    assert 0 < last.pop("lobes from neighbours")[1] <= P
     assert sum(t for phase, (_, t) in last.items() if "held out" not in phase) == P
     assert all(t is None and 0 < d <= P and p.removesuffix(" (more steps)") in last for p, (d, t) in more.items())
     # Lambertian samples: the Lambert rung (held-out error within noise of any richer rung).
