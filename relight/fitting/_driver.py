@@ -22,7 +22,9 @@ Fresnel with F0 = the specular albedo: the form Kang et al. 2018 fit);
    the training lights and scored on held-out lights; each sample gets the
    simplest rung whose held-out error is within noise of the best, then is
    refitted on all lights; a lobe whose peak no light saw and that predicts
-   far beyond the data goes one rung down (:mod:`relight.fitting._extrapolation`).
+   far beyond the data goes one rung down (:mod:`relight.fitting._extrapolation`);
+   after every block, a sample left without a lobe because no light sampled
+   one takes its neighbours' (:mod:`relight.fitting._neighbours`).
 
 The capture is read a block of samples at a time through
 ``relight.io.CaptureSource`` (:mod:`relight.fitting._sources`) and packed into

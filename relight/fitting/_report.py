@@ -150,7 +150,7 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
         solver failure or fewer valid observations than the fit needs), ``residual_rms_median`` (unflagged samples),
         ``observed_samples``, ``steps_median`` and ``observed_median`` (over the samples with
         observations), ``timings_s``, ``model_counts`` / ``unresolved_fraction`` / ``ambiguous_fraction`` /
-        ``collapsed_fraction``
+        ``collapsed_fraction`` / ``lobe_unmeasured_fraction``
         where the fit has them, and with a truth ``against_truth`` (:func:`truth_errors`; None when every
         sample is flagged).
     """
@@ -175,7 +175,7 @@ def fit_report(fitted, surface, truth=None, *, normals: bool = False, timings: d
     if getattr(fitted, "model", None) is not None:
         counts = np.bincount(np.asarray(fitted.model).reshape(-1), minlength=len(MODELS))
         r["model_counts"] = {m: int(c) for m, c in zip(MODELS, counts, strict=False)}
-    for name in ("unresolved", "ambiguous", "collapsed"):
+    for name in ("unresolved", "ambiguous", "collapsed", "lobe_unmeasured"):
         if getattr(fitted, name, None) is not None:
             r[f"{name}_fraction"] = float(np.mean(np.asarray(getattr(fitted, name))))
     if truth is not None:
@@ -333,6 +333,10 @@ def report_markdown(report: dict, title: str = "relight fit report", preface=())
         lines += [f"{100 * r['collapsed_fraction']:.2f}% of the texels have a collapsed lobe (`Fit.collapsed`: F0 "
                   "below 1% or roughness at 0.95 or above on a lobed rung; the lights do not constrain that lobe, "
                   "so its F0 and roughness are not measurements).", ""]
+    if r.get("lobe_unmeasured_fraction"):
+        lines += [f"{100 * r['lobe_unmeasured_fraction']:.2f}% of the texels have a lobe no light of theirs sampled "
+                  "(`Fit.lobe_unmeasured`: F0 and roughness taken from their neighbours, sigma inf; a prior, not a "
+                  "measurement).", ""]
     if "against_truth" in r and r["against_truth"] is None:
         lines += ["Every texel is flagged, so there is no comparison against the simulated truth.", ""]
     elif "against_truth" in r:

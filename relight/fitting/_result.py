@@ -214,6 +214,16 @@ class Fit(eqx.Module):
         return lobed & at_bound & (self.observed >= self.min_observed)
 
     @property
+    def lobe_unmeasured(self):
+        """[P] bool: samples of a lobed BRDF rung, not ``collapsed``, whose F0 and roughness the sample's own
+        data leave unknown (sigma inf): a lobe taken from the neighbours where no light sampled the sample's
+        own (``relight.fit(..., neighbour_lobes=True)``, :mod:`relight.fitting._neighbours`), or, rarely, a
+        fitted lobe nothing constrains. Its values are a prior, not a measurement."""
+        lobed = (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
+        unknown = ~jnp.isfinite(self.uncertainty[:, 3]) & ~jnp.isfinite(self.uncertainty[:, 4])
+        return lobed & unknown & ~self.collapsed & (self.observed >= self.min_observed)
+
+    @property
     def unidentified(self):
         """[P, 9] bool (``PARAM_NAMES``): fitted parameters the data leave unknown (uncertainty inf)."""
         return ~jnp.isfinite(self.uncertainty)

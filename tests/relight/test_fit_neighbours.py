@@ -86,6 +86,8 @@ def test_a_lobe_no_light_sampled_comes_from_the_neighbours(cone, tmp_path):
     # ... reported as not measured here, with the albedo refitted under it: closer to the truth than Lambert's,
     # which had absorbed the lobe's flanks (measured: median 1.7% -> 0.2%).
     assert np.all(np.isinf(np.asarray(f.uncertainty)[moved, 3:5]))
+    np.testing.assert_array_equal(np.asarray(f.lobe_unmeasured), moved)  # flagged, and only they
+    assert relight.fitting.fit_report(f, surface)["lobe_unmeasured_fraction"] == pytest.approx(np.mean(moved))
     assert np.all(np.isfinite(np.asarray(f.uncertainty)[moved, :3]))
     rel = lambda x: np.median(np.abs(np.asarray(x.rho_d)[moved] / np.asarray(truth.rho_d)[moved] - 1))  # noqa: E731
     assert rel(f) < 0.6 * rel(own)
