@@ -417,9 +417,9 @@ LADDER = ("lambert", "blinn_phong", "ggx", "ggx_aniso", "auto")
 def fit_models(folder: Path, mesh, resolution: int, truth, progress) -> list[dict]:
     """Reading (a) fitted with each of LADDER (relight.fit's defaults otherwise: its default loss, no normals): per
     model the median relative albedo error per channel over the texels seen and not flagged, F0 and alpha
-    errors over the texels it gave a lobe, the fraction of seen texels flagged, ``collapsed`` and
-    ``ambiguous``, the rungs ``auto`` chose, the relit relative RMS over the same texels (below), and the
-    seconds."""
+    errors over the texels it gave a lobe, the fraction of seen texels flagged, ``collapsed``,
+    ``ambiguous`` and ``lobe_unmeasured``, the rungs ``auto`` chose, the relit relative RMS over the same
+    texels (below), and the seconds."""
     import relight
     import relight.envmap
     import relight.render
@@ -458,6 +458,7 @@ def fit_models(folder: Path, mesh, resolution: int, truth, progress) -> list[dic
                "flagged": float(np.mean(np.asarray(f.failed, bool)[seen])),
                "collapsed": float(np.mean(np.asarray(f.collapsed, bool)[seen])),
                "ambiguous": float(np.mean(np.asarray(f.ambiguous, bool)[seen])),
+               "lobe_unmeasured": float(np.mean(np.asarray(f.lobe_unmeasured, bool)[seen])),
                "rungs": {m: float(np.mean(rung[seen] == i)) for i, m in enumerate(relight.MODELS)
                          if np.any(rung[seen] == i)}}
         rows.append(row)
@@ -535,15 +536,15 @@ def ladder_table(result: dict) -> str:
     """Reading (a) under each rung and auto (issue 27's bar: albedo median <= 1.2% per channel with the
     default model; auto within 5% of the best fixed rung)."""
     lines = ["| model | albedo rel. err. R / G / B (median) | F0 / alpha rel. err. (lobed texels) | relit rel. RMS | "
-             "flagged | collapsed | ambiguous | rungs | seconds |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "flagged | collapsed | ambiguous | lobe unmeasured | rungs | seconds |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in result["ladder"]:
         lobe = "-" if r["f0_rel"] is None else f"{r['f0_rel']:.3f} / {r['alpha_rel']:.3f}"
         rungs = ", ".join(f"{m} {100 * v:.1f}%" for m, v in r["rungs"].items())
         lines.append(f"| {r['model']} | {' / '.join(f'{100 * x:.2f}%' for x in r['albedo_rel_rgb'])} | {lobe} | "
                      f"{100 * r['relit_rel']:.2f}% | "
                      f"{100 * r['flagged']:.2f}% | {100 * r['collapsed']:.2f}% | {100 * r['ambiguous']:.2f}% | "
-                     f"{rungs} | {r['seconds']:.0f} |")
+                     f"{100 * r.get('lobe_unmeasured', 0.0):.2f}% | {rungs} | {r['seconds']:.0f} |")
     return "\n".join(lines)
 
 

@@ -7,7 +7,7 @@ pair), the data say nothing about the lobe, and Lambert is not an answer but an 
 then weighs exactly the directions no light sampled. Materials vary slowly over a surface, so such a sample
 takes the microfacet lobe of its neighbours: the median F0 and roughness of the GGX samples among its nearest
 fitted samples, its albedo refitted under that lobe (linear least squares), kept only if its own observations
-are predicted as well as by Lambert, within the ladder's tolerance. Its lobe parameters are reported unknown
+are predicted at least as well as by Lambert. Its lobe parameters are reported unknown
 (sigma inf: ``Fit.unidentified``): a prior, not a measurement (docs/fit.md, "How", item 8).
 
 The search runs over the whole fit's maps, after every block, so the result does not depend on the block
@@ -147,9 +147,11 @@ def lobes_from_neighbours(fitted: Fit, plan, surface: stage.Surface, progress=No
             rho, mse, mse_l, seen = (np.asarray(x)[:m] for x in _under_lobe_chunk(
                 *(jnp.asarray(x) for x in (obs, w, wi, wo, irr)), jnp.asarray(f["rho_d"][t], dt),
                 jnp.asarray(f0[idx], dt), jnp.asarray(al[idx], dt), floor=float(plan.floor)))
-            n = np.sum(w[:m, :, 0] > 0, axis=1)
-            # The ladder's tolerance (choose_rungs): two standard errors of a mean of n squared residuals.
-            keep = ~seen & (mse <= mse_l * (1.0 + 2.0 * np.sqrt(2.0 / np.maximum(n, 1))))
+            # No tolerance: the lent lobe has no parameters of the sample's own, so there is no parsimony to
+            # trade accuracy for (the ladder's two standard errors); it is taken only where the sample's own
+            # observations do not favour Lambert. With the tolerance, Extended Yale B subject 20's held-out
+            # error rose 0.784x -> 0.798x the baseline (docs/fit.md, "How", item 8).
+            keep = ~seen & (mse <= mse_l)
             s = t[:m][keep]
             if len(s):
                 changed = True
