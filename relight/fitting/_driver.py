@@ -202,7 +202,7 @@ def fit(capture, surface: stage.Surface, *, model: str = DEFAULT_MODEL, normals:
         neighbour_lobes: for ``model="auto"``: a sample left on Lambert whose lights never sampled a lobe
             (no valid half vector within the lobe's half maximum) takes the median microfacet lobe of
             its nearest fitted samples, where a quarter of them have one, if its own observations are
-            predicted as well (:mod:`relight.fitting._neighbours`); its F0 and roughness sigmas are inf
+            predicted at least as well (:mod:`relight.fitting._neighbours`); its F0 and roughness sigmas are inf
             (a prior, not a measurement). False: every sample from its own data alone.
         options: how the fit runs (:class:`FitOptions`: chunk, block, rounds, steps, tolerances,
             devices, progress, on_block); None = the defaults.
