@@ -8,7 +8,8 @@ then weighs exactly the directions no light sampled. Materials vary slowly over 
 takes the microfacet lobe of its neighbours: the median F0 and roughness of the GGX samples among its nearest
 fitted samples, its albedo refitted under that lobe (linear least squares), kept only if its own observations
 are predicted at least as well as by Lambert. Its lobe parameters are reported unknown
-(sigma inf: ``Fit.unidentified``): a prior, not a measurement (docs/fit.md, "How", item 8).
+(sigma inf: ``Fit.lobe_unmeasured``, ``Fit.unidentified``): a prior, not a measurement (docs/fit.md, "How",
+item 8).
 
 The search runs over the whole fit's maps, after every block, so the result does not depend on the block
 size; the observations of the samples it changes are read again, a block at a time.
@@ -79,14 +80,15 @@ def _under_lobe_chunk(obs, w, wi, wo, irr, rho_l, f0, alpha, floor: float):
         base = dict(normal=up, phi=jnp.zeros((), obs.dtype), rho_s=jnp.reshape(f0, (1,)),
                     alpha=jnp.stack([alpha, alpha]))
         lobe = _fit_model.predict(dict(base, rho_d=jnp.zeros(3, obs.dtype)), lay, wi, wo, irr)
-        unit = _fit_model.predict(dict(base, rho_d=jnp.ones(3, obs.dtype), rho_s=jnp.zeros(1, obs.dtype)),
-                                  Layout(LAMBERT, False, floor), wi, wo, irr)
-        a = jnp.sum(w * unit * unit, axis=0)
-        b = jnp.sum(w * (obs - lobe) * unit, axis=0)
+        # The radiance of a white Lambertian surface: the prediction is linear in the albedo.
+        white = _fit_model.predict(dict(base, rho_d=jnp.ones(3, obs.dtype), rho_s=jnp.zeros(1, obs.dtype)),
+                                   Layout(LAMBERT, False, floor), wi, wo, irr)
+        a = jnp.sum(w * white * white, axis=0)
+        b = jnp.sum(w * (obs - lobe) * white, axis=0)
         rho = jnp.clip(b / jnp.maximum(a, 1e-30), 0.0, 1.0)
         n = jnp.maximum(jnp.sum(w), 1.0)
-        mse = jnp.sum(w * (obs - lobe - rho[None] * unit) ** 2) / n
-        mse_l = jnp.sum(w * (obs - rho_l[None] * unit) ** 2) / n
+        mse = jnp.sum(w * (obs - lobe - rho[None] * white) ** 2) / n
+        mse_l = jnp.sum(w * (obs - rho_l[None] * white) ** 2) / n
         h = wi + wo
         cos_h = h[:, 2] / jnp.maximum(jnp.linalg.norm(h, axis=-1), 1e-12)
         seen = jnp.any((w[:, 0] > 0) & (cos_h >= jnp.cos(HALF_MAX_HALF_ANGLE * alpha)))
