@@ -27,6 +27,16 @@ HALF_MAX_HALF_ANGLE = 0.64
 EXTRAPOLATION_FACTOR = 4.0
 
 
+def peak_sampled(wi, wo, valid, alpha):
+    """Whether the lights sampled a lobe's peak: some ``valid`` [N] observation's half vector (``wi``, ``wo``
+    [N, 3] in the fitted frame, z the normal) lies within the lobe's half maximum of the normal,
+    HALF_MAX_HALF_ANGLE x ``alpha`` (the roughness, sqrt(alpha_x alpha_y)). Shared by this module and
+    :mod:`relight.fitting._neighbours`."""
+    h = wi + wo
+    cos_h = h[:, 2] / jnp.maximum(jnp.linalg.norm(h, axis=-1), 1e-12)
+    return jnp.any(valid & (cos_h >= jnp.cos(HALF_MAX_HALF_ANGLE * alpha)))
+
+
 @jax.jit(static_argnames=("lay",))
 def _extrapolated_chunk(u, obs, w, wi, wo, irr, lay: Layout):
     def one(u, obs, w, wi, wo, irr):
@@ -34,11 +44,7 @@ def _extrapolated_chunk(u, obs, w, wi, wo, irr, lay: Layout):
         R = _fit_model.frame(p["normal"], p["phi"])  # rows t, b, n in the surface frame
         wi_f, wo_f = wi @ R.T, wo @ R.T  # [N, 3] in the fitted frame
         valid = w[:, 0] > 0
-        alpha = jnp.sqrt(p["alpha"][0] * p["alpha"][1])
-        # Observed: some valid light's half vector lies within the lobe's half maximum of the normal.
-        h = wi_f + wo_f
-        cos_h = h[:, 2] / jnp.maximum(jnp.linalg.norm(h, axis=-1), 1e-12)
-        seen = jnp.any(valid & (cos_h >= jnp.cos(HALF_MAX_HALF_ANGLE * alpha)))
+        seen = peak_sampled(wi_f, wo_f, valid, jnp.sqrt(p["alpha"][0] * p["alpha"][1]))
         # The lobe's radiance at its peak for each observation's view (the light at wo's mirror
         # direction, at the sample's strongest irradiance), without the diffuse term.
         peak_dir = wo_f * jnp.asarray([[-1.0, -1.0, 1.0]], wo_f.dtype)

@@ -26,10 +26,11 @@ import stage
 from ..materials._maps import GGX, GGX_ANISO, LAMBERT
 from . import _model as _fit_model
 from ._devices import _chunks_of
-from ._extrapolation import HALF_MAX_HALF_ANGLE
+from ._extrapolation import peak_sampled
 from ._model import Layout
 from ._observations import _normalise, _obs_bucket, _observations_of
-from ._result import FIELDS, Fit, fit_from_arrays
+from ._result import FIELDS, MIN_OBSERVATIONS, Fit, fit_from_arrays
+from ._shadows import cast_shadow
 from ._sources import read_block
 
 # A sample takes its neighbours' lobe when at least NEIGHBOURS of its NEIGHBOURHOOD nearest fitted samples
@@ -68,11 +69,14 @@ def _neighbour_lobes(position, donor, fitted, target, rho_s, alpha):
     return has, f0, al
 
 
-@jax.jit(static_argnames=("floor",))
-def _under_lobe_chunk(obs, w, wi, wo, irr, rho_l, f0, alpha, floor: float):
+@jax.jit(static_argnames=("floor", "shadow_ratio"))
+def _under_lobe_chunk(obs, w, wi, wo, irr, rho_l, f0, alpha, floor: float, shadow_ratio: float | None):
     """Per sample (directions in its fitted frame): the albedo refitted under the lobe (F0, alpha) by
     linear least squares per channel, clipped to [0, 1]; the mean squared residual with it and with the
-    Lambert albedo ``rho_l``; whether a valid observation's half vector lies within the lobe's half maximum."""
+    Lambert albedo ``rho_l``; whether the lights sampled the lobe's peak
+    (:func:`relight.fitting._extrapolation.peak_sampled`). With the fit's ``shadow_ratio``, the observations
+    Lambert's prediction calls cast shadows are left out (:func:`relight.fitting._shadows.cast_shadow`,
+    all kept where fewer than ``MIN_OBSERVATIONS`` would remain), as the fit left them out."""
     lay = Layout(GGX, False, floor)
 
     def one(obs, w, wi, wo, irr, rho_l, f0, alpha):
@@ -83,16 +87,17 @@ def _under_lobe_chunk(obs, w, wi, wo, irr, rho_l, f0, alpha, floor: float):
         # The radiance of a white Lambertian surface: the prediction is linear in the albedo.
         white = _fit_model.predict(dict(base, rho_d=jnp.ones(3, obs.dtype), rho_s=jnp.zeros(1, obs.dtype)),
                                    Layout(LAMBERT, False, floor), wi, wo, irr)
+        if shadow_ratio is not None:
+            cut = cast_shadow(obs, rho_l[None] * white, w, shadow_ratio)
+            enough = jnp.sum(w[:, 0] > 0) - jnp.sum(cut) >= MIN_OBSERVATIONS
+            w = jnp.where((cut & enough)[:, None], 0.0, w)
         a = jnp.sum(w * white * white, axis=0)
         b = jnp.sum(w * (obs - lobe) * white, axis=0)
         rho = jnp.clip(b / jnp.maximum(a, 1e-30), 0.0, 1.0)
         n = jnp.maximum(jnp.sum(w), 1.0)
         mse = jnp.sum(w * (obs - lobe - rho[None] * white) ** 2) / n
         mse_l = jnp.sum(w * (obs - rho_l[None] * white) ** 2) / n
-        h = wi + wo
-        cos_h = h[:, 2] / jnp.maximum(jnp.linalg.norm(h, axis=-1), 1e-12)
-        seen = jnp.any((w[:, 0] > 0) & (cos_h >= jnp.cos(HALF_MAX_HALF_ANGLE * alpha)))
-        return rho, mse, mse_l, seen
+        return rho, mse, mse_l, peak_sampled(wi, wo, w[:, 0] > 0, alpha)
 
     return jax.vmap(one)(obs, w, wi, wo, irr, rho_l, f0, alpha)
 
@@ -143,12 +148,10 @@ def lobes_from_neighbours(fitted: Fit, plan, surface: stage.Surface, progress=No
             obs, w, wi, wo, irr, _ = _observations_of(rad[:, :, t - b0], mask[:, :, t - b0], plan.rig,
                                                       plan.cameras, sub, n_keep, dt)
             obs, irr, unit = _normalise(obs, w, irr)
-            if plan.shadow_ratio is not None:  # the fit's censoring (docs/fit.md, "How", item 4), by Lambert's light
-                lam = f["rho_d"][t][:, None, :] * irr * np.maximum(wi[..., 2:3], 0.0) / np.pi
-                w = np.where(np.any(obs < plan.shadow_ratio * lam, axis=-1, keepdims=True), 0.0, w).astype(dt)
             rho, mse, mse_l, seen = (np.asarray(x)[:m] for x in _under_lobe_chunk(
                 *(jnp.asarray(x) for x in (obs, w, wi, wo, irr)), jnp.asarray(f["rho_d"][t], dt),
-                jnp.asarray(f0[idx], dt), jnp.asarray(al[idx], dt), floor=float(plan.floor)))
+                jnp.asarray(f0[idx], dt), jnp.asarray(al[idx], dt), floor=float(plan.floor),
+                shadow_ratio=plan.shadow_ratio))
             # No tolerance: the lent lobe has no parameters of the sample's own, so there is no parsimony to
             # trade accuracy for (the ladder's two standard errors); it is taken only where the sample's own
             # observations do not favour Lambert. With the tolerance, Extended Yale B subject 20's held-out

@@ -209,9 +209,8 @@ class Fit(eqx.Module):
         bound) is held there for the uncertainties: its sigmas are inf (``unidentified``), the albedo's and
         the normal's those of the free parameters. Samples with too few observations are ``failed``, not
         collapsed."""
-        lobed = (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
         at_bound = (self.rho_s[:, 0] < self.COLLAPSED_F0) | (jnp.max(self.alpha, axis=1) >= self.COLLAPSED_ALPHA)
-        return lobed & at_bound & (self.observed >= self.min_observed)
+        return self._lobed & at_bound & (self.observed >= self.min_observed)
 
     @property
     def lobe_unmeasured(self):
@@ -219,9 +218,13 @@ class Fit(eqx.Module):
         data leave unknown (sigma inf): a lobe taken from the neighbours where no light sampled the sample's
         own (``relight.fit(..., neighbour_lobes=True)``, :mod:`relight.fitting._neighbours`), or, rarely, a
         fitted lobe nothing constrains. Its values are a prior, not a measurement."""
-        lobed = (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
         unknown = ~jnp.isfinite(self.uncertainty[:, 3]) & ~jnp.isfinite(self.uncertainty[:, 4])
-        return lobed & unknown & ~self.collapsed & (self.observed >= self.min_observed)
+        return self._lobed & unknown & ~self.collapsed & (self.observed >= self.min_observed)
+
+    @property
+    def _lobed(self):
+        """[P] bool: samples of a lobed BRDF rung (Blinn-Phong, GGX, anisotropic GGX)."""
+        return (self.model >= BLINN_PHONG) & (self.model < SUBSURFACE)
 
     @property
     def unidentified(self):

@@ -32,14 +32,19 @@ from ._model import Layout
 SHADOW_RATIO = 0.5
 
 
+def cast_shadow(obs, pred, w, ratio):
+    """bool [..., N]: the valid observations (``w`` [..., N, C] > 0) whose grey value (the sum of the
+    channels of ``obs`` [..., N, C]) is below ``ratio`` x the prediction ``pred``'s (module docstring)."""
+    return (w[..., 0] > 0) & (jnp.sum(obs, axis=-1) < ratio * jnp.sum(pred, axis=-1))
+
+
 @jax.jit(static_argnames=("lay",))
 def _shadowed_chunk(u, obs, w, wi, wo, irr, ratio, lay: Layout):
     """bool [Pc, N]: the valid observations whose grey value (sum of channels) is below ``ratio`` x
     the rung's prediction from the fitted parameters ``u`` (sample-major arrays)."""
 
     def one(u, obs, w, wi, wo, irr):
-        pred = _fit_model.predict(_fit_model.unpack(u, lay), lay, wi, wo, irr)  # [N, C]
-        return (w[:, 0] > 0) & (jnp.sum(obs, axis=-1) < ratio * jnp.sum(pred, axis=-1))
+        return cast_shadow(obs, _fit_model.predict(_fit_model.unpack(u, lay), lay, wi, wo, irr), w, ratio)
 
     return jax.vmap(one)(u, obs, w, wi, wo, irr)
 
